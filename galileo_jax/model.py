@@ -1,0 +1,183 @@
+"""Scene -> MuJoCo model, built with :class:`mujoco.MjSpec`.
+
+Design (measured for MJX 3.17, see issue 2 and ``tests/test_physics.py``):
+
+* The floor is a plane (z = 0); the ramp is a second plane tilted by theta through the foot
+  line. Collision treats planes as half-spaces, so together they give exactly the
+  ramp-and-floor profile; their ``size`` only limits what is drawn.
+* Objects collide only through explicit contact pairs (default contacts are off:
+  ``contype = conaffinity = 0``), and each pair carries its own friction. MuJoCo would
+  otherwise combine two geoms' friction by taking the maximum; with pairs, the pair's
+  friction *is* the effective sliding friction coefficient of the object on that surface,
+  so k1 and k2 mean what they say (proved in ``tests/test_physics.py``).
+* Object 1 and the floor/ramp: ``condim 3`` (sliding friction), pyramidal cones and the
+  Newton solver (elliptic cones give NaN tangents in MJX). Object-object impacts are
+  frictionless (``condim 1``) with MuJoCo's default ``solref`` (rebound ratio ~0.1).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from galileo_jax.scene import Scene, SceneObject
+
+#: Nominal mass (kg) given to free masses when the model is built; the simulator rescales.
+NOMINAL_MASS = 0.5
+#: Nominal friction coefficient given to free frictions when the model is built.
+NOMINAL_FRICTION = 0.3
+#: Default object colours (RGBA), object 1 and object 2.
+OBJECT_COLOURS = ((0.85, 0.25, 0.2, 1.0), (0.2, 0.45, 0.85, 1.0))
+
+
+@dataclass(frozen=True)
+class ModelIndex:
+    """Indices into the compiled model that the simulator needs (static, not traced).
+
+    Attributes:
+        body: (n_obj,) body id of each object.
+        qpos: (n_obj,) address of each object's free-joint position in ``qpos``.
+        dof: (n_obj,) address of each object's first free-joint dof in ``qvel``.
+        pairs: per object, the contact-pair ids that carry its friction (ramp, floor).
+        object_pair: id of the object-object pair, or -1.
+    """
+
+    body: tuple[int, ...]
+    qpos: tuple[int, ...]
+    dof: tuple[int, ...]
+    pairs: tuple[tuple[int, ...], ...]
+    object_pair: int
+
+
+def _rot_y(angle: float) -> list[float]:
+    """Quaternion (w, x, y, z) of a rotation by ``angle`` (rad) about the world y axis."""
+    return [math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]
+
+
+def object_start_pose(scene: Scene, i: int) -> tuple[np.ndarray, list[float]]:
+    """Centre position (3,) in m and orientation quaternion (4,) of object ``i`` at rest.
+
+    Object on the ramp: centre = -s t + (h/2) n with t = (cos, 0, -sin) theta the downhill
+    tangent and n = (sin, 0, cos) theta the surface normal; on the floor: (s, 0, h/2).
+    """
+    obj = scene.objects[i]
+    s, h = obj.start, obj.height
+    if scene.placement(i) == "ramp":
+        th = scene.ramp.angle
+        t = np.array([math.cos(th), 0.0, -math.sin(th)])
+        n = np.array([math.sin(th), 0.0, math.cos(th)])
+        return -s * t + 0.5 * h * n, _rot_y(th)
+    return np.array([s, 0.0, 0.5 * h]), [1.0, 0.0, 0.0, 0.0]
+
+
+def _add_object_geom(body: mujoco.MjsBody, obj: SceneObject, name: str, rgba) -> None:
+    kind = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+            "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}[obj.shape]
+    if obj.shape == "box":
+        size = [v / 2 for v in obj.size]
+    elif obj.shape == "cylinder":
+        size = [obj.size[0], obj.size[1] / 2, 0.0]
+    else:
+        size = [obj.size[0], 0.0, 0.0]
+    body.add_geom(name=name, type=kind, size=size + [0.0] * (3 - len(size)),
+                  mass=obj.mass or NOMINAL_MASS, contype=0, conaffinity=0, rgba=list(rgba),
+                  material=f"{name}_mat")
+
+
+def build_spec(scene: Scene) -> mujoco.MjSpec:
+    """Build the MuJoCo specification of a scene (ramp, floor, objects, contact pairs).
+
+    Returns:
+        An uncompiled :class:`mujoco.MjSpec`; :func:`build_model` compiles it. Rendering code
+        may add cameras and lights before compiling.
+    """
+    spec = mujoco.MjSpec()
+    spec.modelname = scene.name.replace(" ", "_")
+    opt = spec.option
+    opt.gravity = [0.0, 0.0, -scene.gravity]
+    opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    opt.iterations = 20
+    opt.ls_iterations = 10
+    opt.timestep = 1.0 / 240.0
+
+    spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                     rgb1=[0.82, 0.8, 0.76], rgb2=[0.74, 0.72, 0.68], width=256, height=256)
+    spec.add_material(name="surface_mat", textures=["", "grid"], texrepeat=[8, 8], texuniform=True)
+
+    th = scene.ramp.angle
+    L, W = scene.ramp.length, scene.ramp.width
+    tangent = np.array([math.cos(th), 0.0, -math.sin(th)])
+    world = spec.worldbody
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, pos=[scene.floor.length / 2, 0, 0],
+                   size=[scene.floor.length / 2, W / 2, 0.05], contype=0, conaffinity=0, material="surface_mat")
+    world.add_geom(name="ramp", type=mujoco.mjtGeom.mjGEOM_PLANE, pos=list(-0.5 * L * tangent),
+                   quat=_rot_y(th), size=[L / 2, W / 2, 0.05], contype=0, conaffinity=0, material="surface_mat")
+    # A solid block under the ramp, for looks only.
+    world.add_geom(name="ramp_block", type=mujoco.mjtGeom.mjGEOM_BOX, contype=0, conaffinity=0,
+                   pos=list(-0.5 * L * tangent + np.array([0.0, 0.0, -0.01 / math.cos(th)])),
+                   quat=_rot_y(th), size=[L / 2, W / 2 - 1e-3, 0.01], rgba=[0.55, 0.45, 0.35, 1], group=1)
+    world.add_light(name="sun", pos=[0, -2, 3], dir=[0, 0.6, -0.8], diffuse=[0.8, 0.8, 0.8])
+
+    for i, obj in enumerate(scene.objects):
+        pos, quat = object_start_pose(scene, i)
+        rgba = obj.rgba or OBJECT_COLOURS[i % 2]
+        name = f"object{i + 1}"
+        spec.add_texture(name=f"{name}_tex", type=mujoco.mjtTexture.mjTEXTURE_CUBE,
+                         builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=list(rgba[:3]),
+                         rgb2=[0.1 + 0.3 * c for c in rgba[:3]], width=64, height=64)
+        spec.add_material(name=f"{name}_mat", textures=["", f"{name}_tex"], texuniform=False)
+        body = world.add_body(name=name, pos=list(pos), quat=quat)
+        body.add_freejoint(name=f"{name}_free")
+        _add_object_geom(body, obj, name, rgba)
+
+    for i, obj in enumerate(scene.objects):
+        k = obj.friction if obj.friction is not None else NOMINAL_FRICTION
+        surfaces = ["ramp", "floor"] if scene.placement(i) == "ramp" else ["floor"]
+        for surf in surfaces:
+            spec.add_pair(name=f"object{i + 1}_{surf}", geomname1=f"object{i + 1}", geomname2=surf,
+                          condim=3, friction=[k, k, 0.005, 0.0001, 0.0001])
+    if scene.n_objects == 2:
+        spec.add_pair(name="object1_object2", geomname1="object1", geomname2="object2", condim=1,
+                      friction=[0.0, 0.0, 0.005, 0.0001, 0.0001])
+    return spec
+
+
+def build_model(scene: Scene, timestep: float | None = None) -> tuple[mujoco.MjModel, ModelIndex]:
+    """Compile the scene's MuJoCo model.
+
+    Args:
+        scene: the validated scene.
+        timestep: physics timestep in s (default 1/240 s).
+
+    Returns:
+        ``(model, index)``: the compiled :class:`mujoco.MjModel` and the :class:`ModelIndex`
+        of the ids the simulator needs.
+    """
+    spec = build_spec(scene)
+    if timestep is not None:
+        spec.option.timestep = timestep
+    model = spec.compile()
+    return model, model_index(model, scene.n_objects)
+
+
+def model_index(model: mujoco.MjModel, n_objects: int) -> ModelIndex:
+    """Look up body, joint and pair ids of the objects in a compiled scene model."""
+    bodies, qpos, dofs, pairs = [], [], [], []
+    for i in range(1, n_objects + 1):
+        b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"object{i}")
+        j = model.body_jntadr[b]
+        bodies.append(int(b))
+        qpos.append(int(model.jnt_qposadr[j]))
+        dofs.append(int(model.jnt_dofadr[j]))
+        ids = []
+        for surf in ("ramp", "floor"):
+            pid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PAIR, f"object{i}_{surf}")
+            if pid >= 0:
+                ids.append(int(pid))
+        pairs.append(tuple(ids))
+    op = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PAIR, "object1_object2")
+    return ModelIndex(tuple(bodies), tuple(qpos), tuple(dofs), tuple(pairs), int(op))

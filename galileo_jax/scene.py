@@ -1,0 +1,296 @@
+"""Scene files: what a video shows, validated.
+
+A scene file is YAML. It describes the ramp (angle, length), the horizontal floor it runs
+into, one or two free objects (shape, size, start position, known or free mass and friction
+coefficient), the camera calibration (pixels per metre, or two image points a known distance
+apart; the image direction in which object 1 moves down the ramp), the frame rate (read from
+the video unless given) and optional start pixels of each object.
+
+World frame (SI units, metres): x is horizontal, positive in the direction object 1 moves
+down the ramp; z is up; the ramp's foot line is the y axis. The floor is z = 0 for x >= 0 and
+the ramp surface is z = -x tan(theta) for -L cos(theta) <= x <= 0. An object's ``start`` is
+the distance along the surface from the foot line to the point under its centre (up the
+slope for an object on the ramp, along +x for one on the floor).
+
+Profile frame: trace "x" is the world x velocity, trace "y" the world z (vertical, up)
+velocity, in m/s; the camera calibration maps image pixels to this frame.
+
+Example::
+
+    name: ramp_20
+    ramp: {angle_deg: 20, length: 0.6}
+    objects:
+      - {shape: box, size: [0.08, 0.05, 0.04], start: 0.40}
+      - {shape: box, size: [0.06, 0.05, 0.04], start: 0.15, mass: 0.2}
+    camera: {pixels_per_metre: 800, ramp_direction: right}
+
+Errors: :func:`load_scene` raises :class:`~galileo_jax.errors.SceneError` with one line
+that names the offending key and what is expected.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from galileo_jax.errors import SceneError
+
+PositiveFloat = Annotated[float, Field(gt=0)]
+Pixel = tuple[float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Ramp(_Strict):
+    """The inclined plane: angle in degrees (0, 80), length along the surface in metres."""
+
+    angle_deg: float = Field(gt=0, lt=80)
+    length: PositiveFloat = 1.0
+    width: PositiveFloat = 0.3
+
+    @property
+    def angle(self) -> float:
+        """Ramp angle theta in radians."""
+        return math.radians(self.angle_deg)
+
+
+class Floor(_Strict):
+    """The horizontal surface the ramp continues into; length in metres (for drawing)."""
+
+    length: PositiveFloat = 1.5
+
+
+class SceneObject(_Strict):
+    """One free object.
+
+    ``size``: box ``[length, width, height]`` (full extents, m; length along the motion),
+    cylinder ``[radius, height]`` (standing on a flat face), sphere ``[radius]``.
+    ``mass`` (kg) and ``friction`` (sliding friction coefficient on ramp and floor) are
+    known when given and free parameters when ``null``/absent.
+    """
+
+    name: str | None = None
+    shape: Literal["box", "cylinder", "sphere"] = "box"
+    size: list[PositiveFloat]
+    start: float = Field(ge=0)
+    on: Literal["ramp", "floor"] | None = None
+    mass: PositiveFloat | None = None
+    friction: float | None = Field(default=None, ge=0)
+    rgba: tuple[float, float, float, float] | None = None
+
+    @model_validator(mode="after")
+    def _check_size(self) -> "SceneObject":
+        expected = {"box": 3, "cylinder": 2, "sphere": 1}[self.shape]
+        if len(self.size) != expected:
+            names = {"box": "[length, width, height]", "cylinder": "[radius, height]", "sphere": "[radius]"}
+            raise ValueError(f"a {self.shape} needs size {names[self.shape]} ({expected} numbers in metres), got {self.size}")
+        return self
+
+    @property
+    def height(self) -> float:
+        """Distance from the supporting surface to the object's centre, times two (m)."""
+        if self.shape == "box":
+            return self.size[2]
+        if self.shape == "cylinder":
+            return self.size[1]
+        return 2 * self.size[0]
+
+    @property
+    def length(self) -> float:
+        """Extent along the direction of motion (m)."""
+        if self.shape == "box":
+            return self.size[0]
+        return 2 * self.size[0]
+
+
+class Reference(_Strict):
+    """Two image points (pixels) a known distance apart (m), for calibration."""
+
+    p1: Pixel
+    p2: Pixel
+    distance: PositiveFloat
+
+
+class Camera(_Strict):
+    """Camera calibration from image pixels to the world x-z plane.
+
+    Give ``pixels_per_metre`` or a ``reference`` (two points a known distance apart).
+    ``ramp_direction`` is the image direction ("right" or "left") in which object 1 moves
+    down the ramp. ``roll_deg`` is the angle (degrees, counter-clockwise as seen in the image)
+    by which the image's horizontal is rotated from the world horizontal. ``start_pixels``
+    optionally gives each object's centre (u, v) in the first frame, else objects are found
+    automatically.
+    """
+
+    pixels_per_metre: PositiveFloat | None = None
+    reference: Reference | None = None
+    ramp_direction: Literal["right", "left"] = "right"
+    roll_deg: float = Field(default=0.0, ge=-45, le=45)
+    start_pixels: list[Pixel] | None = None
+    foot_pixel: Pixel | None = None
+
+    @model_validator(mode="after")
+    def _check_scale(self) -> "Camera":
+        if (self.pixels_per_metre is None) == (self.reference is None):
+            raise ValueError("give exactly one of camera.pixels_per_metre or camera.reference")
+        if self.reference is not None:
+            (u1, v1), (u2, v2) = self.reference.p1, self.reference.p2
+            if math.hypot(u2 - u1, v2 - v1) < 5:
+                raise ValueError("camera.reference points are less than 5 px apart")
+        return self
+
+    @property
+    def scale(self) -> float:
+        """Pixels per metre in the plane of motion."""
+        if self.pixels_per_metre is not None:
+            return self.pixels_per_metre
+        (u1, v1), (u2, v2) = self.reference.p1, self.reference.p2
+        return math.hypot(u2 - u1, v2 - v1) / self.reference.distance
+
+
+class Video(_Strict):
+    """Video timing. ``fps`` overrides the container's frame rate (e.g. a high-speed clip
+    stored at 29.97 fps); ``window`` restricts the fit to [start, end] seconds of the video."""
+
+    fps: PositiveFloat | None = None
+    window: tuple[float, float] | None = None
+
+
+class Priors(_Strict):
+    """Uniform prior ranges for free parameters (dissertation 4.2.5: masses and friction in (0, 1))."""
+
+    friction: tuple[float, float] = (0.0, 1.0)
+    mass: tuple[float, float] = (0.0, 1.0)
+
+    @model_validator(mode="after")
+    def _check(self) -> "Priors":
+        for name, (lo, hi) in (("friction", self.friction), ("mass", self.mass)):
+            if not (0 <= lo < hi):
+                raise ValueError(f"priors.{name} must be [low, high] with 0 <= low < high, got [{lo}, {hi}]")
+        return self
+
+
+class Simulation(_Strict):
+    """Physics settings. ``substeps`` physics steps per video frame (8 at ~30 fps gives the
+    1/240 s timestep measured to be within 0.01 m/s of a 1/1920 s reference); ``tail`` extra
+    seconds simulated after the video for the rest-position prediction."""
+
+    substeps: int = Field(default=8, ge=1, le=64)
+    tail: float = Field(default=3.0, ge=0, le=30)
+
+
+class Scene(_Strict):
+    """A validated scene. Build with :func:`load_scene` or ``Scene.model_validate(dict)``."""
+
+    name: str = "scene"
+    ramp: Ramp
+    floor: Floor = Floor()
+    objects: list[SceneObject] = Field(min_length=1, max_length=2)
+    camera: Camera
+    video: Video = Video()
+    priors: Priors = Priors()
+    simulation: Simulation = Simulation()
+    gravity: PositiveFloat = 9.81
+
+    @model_validator(mode="after")
+    def _check_layout(self) -> "Scene":
+        placed = []
+        for i, obj in enumerate(self.objects):
+            where = obj.on or ("ramp" if i == 0 else "floor")
+            if where == "ramp" and obj.start > self.ramp.length:
+                raise ValueError(f"objects[{i}].start = {obj.start} m is beyond the ramp's length {self.ramp.length} m")
+            if where == "ramp" and obj.start < obj.length / 2:
+                raise ValueError(f"objects[{i}].start = {obj.start} m puts the object over the ramp's foot; it must be >= {obj.length / 2} m")
+            placed.append(where)
+        if len(self.objects) == 2 and placed == ["floor", "ramp"]:
+            raise ValueError("object 1 must be the one on the ramp (swap the objects)")
+        if len(self.objects) == 2 and placed == ["floor", "floor"]:
+            raise ValueError("at least object 1 must start on the ramp")
+        if self.camera.start_pixels is not None and len(self.camera.start_pixels) != len(self.objects):
+            raise ValueError(f"camera.start_pixels has {len(self.camera.start_pixels)} points for {len(self.objects)} objects")
+        if len(self.objects) == 2 and placed == ["ramp", "ramp"]:
+            a, b = self.objects
+            if abs(a.start - b.start) < (a.length + b.length) / 2:
+                raise ValueError("objects 1 and 2 overlap on the ramp")
+        return self
+
+    def placement(self, i: int) -> str:
+        """Where object ``i`` starts: "ramp" or "floor"."""
+        obj = self.objects[i]
+        return obj.on or ("ramp" if i == 0 else "floor")
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.objects)
+
+    def free_parameters(self) -> list[str]:
+        """Names of free physical parameters among m1, k1, m2, k2, in that order."""
+        names = []
+        for i, obj in enumerate(self.objects, start=1):
+            if obj.mass is None:
+                names.append(f"m{i}")
+            if obj.friction is None:
+                names.append(f"k{i}")
+        return names
+
+    def mass_scale_known(self) -> bool:
+        """True when a known mass fixes the absolute mass scale."""
+        return any(o.mass is not None for o in self.objects)
+
+
+def _format_validation_error(path: str, err: ValidationError) -> str:
+    first = err.errors()[0]
+    loc = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    msg = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        msg = "unknown key (check the spelling; see scenes/ramp_20.yaml for the format)"
+    elif first["type"] == "missing":
+        msg = "required key is missing"
+    more = f" (and {len(err.errors()) - 1} more problems)" if len(err.errors()) > 1 else ""
+    return f"scene file {path}: {loc}: {msg}{more}"
+
+
+def scene_from_dict(data: dict, source: str = "<dict>") -> Scene:
+    """Validate a scene given as a dict (as read from YAML).
+
+    Raises:
+        SceneError: one line naming the first bad key and what is expected.
+    """
+    if not isinstance(data, dict):
+        raise SceneError(f"scene file {source}: expected a mapping of keys (ramp, objects, camera, ...), got {type(data).__name__}")
+    try:
+        return Scene.model_validate(data)
+    except ValidationError as err:
+        raise SceneError(_format_validation_error(source, err)) from None
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a YAML scene file.
+
+    Raises:
+        SceneError: the file is missing, not YAML, or not a valid scene.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"scene file {path} not found; pass --scene FILE (see scenes/ for examples)")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as err:
+        line = getattr(getattr(err, "problem_mark", None), "line", None)
+        where = f" at line {line + 1}" if line is not None else ""
+        raise SceneError(f"scene file {path} is not valid YAML{where}; fix the syntax") from None
+    return scene_from_dict(data, str(path))
+
+
+def save_scene(scene: Scene, path: str | Path) -> None:
+    """Write a scene as YAML (only non-default keys)."""
+    data = scene.model_dump(mode="json", exclude_defaults=True)
+    if "name" not in data:
+        data["name"] = scene.name
+    Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
