@@ -1,0 +1,58 @@
+"""Wall time of `fit` on the shipped example, cold (empty compilation cache) and warm.
+
+Usage: python benchmarks/fit_timing.py [--video examples/ramp20_example.mp4] [--methods grad mh]
+
+Each run is a fresh process (as a user would run it). "cold" uses an empty persistent
+compilation cache; "warm" reruns with the cache the cold run filled. Writes
+benchmarks/results/fit_timing.{md,json} with the machine it ran on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_fit(video: str, method: str, cache: str, out: str) -> float:
+    env = dict(os.environ, GALILEO_JAX_CACHE=cache, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "galileo_jax.fit", video, "--method", method, "--out", out, "--quiet"],
+                   check=True, env=env, cwd=ROOT)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--video", default="examples/ramp20_example.mp4")
+    ap.add_argument("--methods", nargs="+", default=["grad", "mh"])
+    args = ap.parse_args()
+    rows = []
+    for method in args.methods:
+        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+            cold = run_fit(args.video, method, cache, out)
+            warm = run_fit(args.video, method, cache, out)
+            result = json.loads((Path(out) / "result.json").read_text())
+        rows.append({"method": method, "cold_s": round(cold, 1), "warm_s": round(warm, 1),
+                     "estimate": {k: v.get("estimate") for k, v in result["parameters"].items()}})
+        print(rows[-1], flush=True)
+    machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
+    res = ROOT / "benchmarks" / "results"
+    res.mkdir(parents=True, exist_ok=True)
+    (res / "fit_timing.json").write_text(json.dumps({"machine": machine, "video": args.video, "rows": rows}, indent=2))
+    lines = [f"# fit wall time on {args.video}", "", f"Machine: {machine}", "",
+             "| method | cold (s) | warm cache (s) |", "|---|---|---|"]
+    lines += [f"| {r['method']} | {r['cold_s']} | {r['warm_s']} |" for r in rows]
+    (res / "fit_timing.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Reporting at the edge: console summary, JSON result, figures, overlay video."""

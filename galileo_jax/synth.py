@@ -1,0 +1,594 @@
+"""Synthetic ramp videos with exact ground truth, rendered with MuJoCo.
+
+:func:`render_video` simulates a scene in C MuJoCo for given masses and friction coefficients
+and renders it through an orthographic front camera (:mod:`galileo_jax.render`), so the
+pixel scale is exact; it writes three files next to each other (each atomically):
+
+* ``<stem>.mp4``: the video (mp4v), ``width`` x ``height``, ``fps`` frames per second, with
+  Gaussian pixel noise of SD ``noise_sd`` grey levels (before compression).
+* ``<stem>.yaml``: the input scene with its ``camera`` block replaced by the exact
+  calibration (``pixels_per_metre``, ``foot_pixel`` = pixel of the world origin, i.e. the ramp
+  foot in the plane of motion, ``ramp_direction: right``, ``roll_deg: 0``), and ``video.fps``
+  only when the container's frame rate differs from ``fps``.
+* ``<stem>.truth.json``: the ground truth (see :func:`truth_record`).
+
+Timeline: frame k is shown at t_k = k / fps, k = 0..N-1. The objects rest at their start
+poses (optionally held by a hand) for ``rest_frames`` frames and are released at
+``release_time = rest_frames / fps``; frame k >= rest_frames shows the state after
+(k - rest_frames) * substeps physics steps of dt = 1 / (fps * substeps), the timestep of
+:func:`galileo_jax.simulate.physics_timestep`. This is the sampling of
+:func:`galileo_jax.simulate.velocity_profile` with the same ``frame_times`` and
+``release_time``, so the MJX simulator and the video can be compared sample by sample.
+
+Masses and frictions are set as :func:`galileo_jax.simulate.apply_params` sets them in MJX:
+``body_mass``, ``body_inertia`` scaled with the mass, ``pair_friction[:, 0:2]`` of each
+object's pairs with the ramp and floor, then ``mj_setConst`` recomputes ``invweight0``.
+
+Rendering needs an OpenGL context: ``MUJOCO_GL=egl`` (set by default here) with Mesa's
+software EGL works without a GPU; on Debian/Ubuntu install
+``libegl1 libegl-mesa0 libopengl0 libgl1-mesa-dri``.
+
+CLI::
+
+    python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.15 --m2 0.3 \\
+        --k2 0.25 --out out/ [--fps 30] [--duration S] [--noise 2] [--hand] [--seed 0] \\
+        [--random N]
+
+``--out`` is a ``.mp4`` path or a folder (``<scene name>.mp4``, or ``<scene name>_NNN.mp4``
+with ``--random N``). The shipped example was made with::
+
+    python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.2 --m2 0.3 \
+        --k2 0.25 --hand --noise 2 --rest 0.5 --duration 3.0 --seed 0 \
+        --out examples/ramp20_example.mp4
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+try:  # MuJoCo loads its OpenGL backend (MUJOCO_GL) on import: a missing libEGL fails here.
+    import mujoco
+except Exception as _err:  # noqa: BLE001
+    if __name__ != "__main__":
+        raise
+    print(f"error: cannot load MuJoCo with MUJOCO_GL={os.environ['MUJOCO_GL']} ({type(_err).__name__}: {_err}); "
+          f"install libegl1 libegl-mesa0 libopengl0 libgl1-mesa-dri, or set MUJOCO_GL to a working backend",
+          file=sys.stderr)
+    raise SystemExit(2) from None
+
+import tempfile  # noqa: E402
+from collections.abc import Iterator, Mapping  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import NamedTuple  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from galileo_jax import render  # noqa: E402
+from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
+from galileo_jax.model import ModelIndex, build_model  # noqa: E402
+from galileo_jax.scene import Scene, Video, load_scene, save_scene  # noqa: E402
+from galileo_jax.simulate import PhysParams, physics_timestep  # noqa: E402
+
+#: Default seconds at rest (held) before release.
+REST_SECONDS = 0.3
+#: Seconds all objects must stay at rest before an automatic-length video ends.
+SETTLE_SECONDS = 0.5
+#: Longest automatic video (s, rest frames included).
+MAX_SECONDS = 4.0
+#: An object is at rest when its centre moves less than this speed (m/s) over a frame.
+REST_SPEED = 2e-3
+#: Margin (dimensionless) below tan(theta) for k1 in random draws, so object 1 slides.
+SLIDE_MARGIN = 0.05
+#: Range of random friction draws (intersected with the scene's prior).
+RANDOM_FRICTION = (0.02, 0.6)
+#: Range of random mass draws in kg (intersected with the scene's prior).
+RANDOM_MASS = (0.05, 1.0)
+
+
+class Motion(NamedTuple):
+    """The simulated motion at the video's frames.
+
+    Attributes:
+        qpos: (N, nq) generalised positions at each frame (world frame, m and quaternions).
+        positions: (N, n_objects, 2) world x and vertical z of each object's centre in m.
+        release_frame: frames before release (objects at their start poses).
+        fps: frames per second.
+    """
+
+    qpos: np.ndarray
+    positions: np.ndarray
+    release_frame: int
+    fps: float
+
+    @property
+    def n_frames(self) -> int:
+        return self.qpos.shape[0]
+
+    @property
+    def release_time(self) -> float:
+        """Video time of release in s."""
+        return self.release_frame / self.fps
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        """(N,) frame times in s."""
+        return np.arange(self.n_frames) / self.fps
+
+
+# --------------------------------------------------------------------------- parameters
+
+
+def resolve_params(scene: Scene, params) -> PhysParams:
+    """Masses and frictions of every object, from a dict or :class:`PhysParams`.
+
+    Args:
+        scene: the scene; its known masses/frictions fill values the dict leaves out.
+        params: ``{"m1", "k1", "m2", "k2"}`` (any subset that, with the scene's known values,
+            gives every object a mass in kg and a friction coefficient) or a
+            :class:`PhysParams` with (n_objects,) arrays.
+
+    Returns:
+        :class:`PhysParams` of numpy float arrays, shapes (n_objects,).
+
+    Raises:
+        GalileoError: a value is missing, unknown, non-finite, out of range, or contradicts
+            a value the scene fixes.
+    """
+    n = scene.n_objects
+    if isinstance(params, PhysParams):
+        mass = np.asarray(params.mass, dtype=float).reshape(-1)
+        friction = np.asarray(params.friction, dtype=float).reshape(-1)
+        if mass.shape != (n,) or friction.shape != (n,):
+            raise GalileoError(f"PhysParams must have {n} masses and {n} frictions for this scene")
+    elif isinstance(params, Mapping):
+        allowed = {f"{p}{i + 1}" for i in range(n) for p in "mk"}
+        unknown = sorted(set(params) - allowed)
+        if unknown:
+            raise GalileoError(f"unknown parameter {unknown[0]!r}; this scene takes {', '.join(sorted(allowed))}")
+        mass, friction = np.zeros(n), np.zeros(n)
+        for i, obj in enumerate(scene.objects):
+            for key, known, out in ((f"m{i + 1}", obj.mass, mass), (f"k{i + 1}", obj.friction, friction)):
+                given = params.get(key)
+                if given is None and known is None:
+                    flag = "--" + key
+                    raise GalileoError(f"{key} is free in the scene; give its value ({flag})")
+                if given is not None and known is not None and not math.isclose(float(given), known, rel_tol=1e-9):
+                    raise GalileoError(f"{key} = {given} contradicts the scene, which fixes {key} = {known}; "
+                                       f"leave it out or edit the scene")
+                out[i] = float(given if given is not None else known)
+    else:
+        raise GalileoError("params must be a dict {m1, k1, m2, k2} or a PhysParams")
+    for i in range(n):
+        if not (math.isfinite(mass[i]) and 0 < mass[i] <= 1e3):
+            raise GalileoError(f"m{i + 1} = {mass[i]} must be a mass in kg in (0, 1000]")
+        if not (math.isfinite(friction[i]) and 0 <= friction[i] <= 10):
+            raise GalileoError(f"k{i + 1} = {friction[i]} must be a friction coefficient in [0, 10]")
+    return PhysParams(mass, friction)
+
+
+def param_dict(params: PhysParams) -> dict[str, float]:
+    """``{"m1", "k1", ...}`` of :class:`PhysParams` (plus nothing else)."""
+    out = {}
+    for i, (m, k) in enumerate(zip(np.asarray(params.mass), np.asarray(params.friction)), start=1):
+        out[f"m{i}"] = float(m)
+        out[f"k{i}"] = float(k)
+    return out
+
+
+def draw_random_params(scene: Scene, rng: np.random.Generator, margin: float = SLIDE_MARGIN,
+                       fixed: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Draw the scene's free parameters uniformly, with object 1 sure to slide.
+
+    Masses: uniform on ``RANDOM_MASS`` intersected with ``priors.mass``; frictions uniform on
+    ``RANDOM_FRICTION`` intersected with ``priors.friction``; k1 also below
+    tan(theta) - ``margin``. Values in ``fixed`` are kept.
+
+    Raises:
+        GalileoError: no friction range leaves object 1 sliding (ramp too shallow).
+    """
+    fixed = dict(fixed or {})
+    out = {}
+    ma, mb = max(RANDOM_MASS[0], scene.priors.mass[0]), min(RANDOM_MASS[1], scene.priors.mass[1])
+    fa, fb = max(RANDOM_FRICTION[0], scene.priors.friction[0]), min(RANDOM_FRICTION[1], scene.priors.friction[1])
+    for name in scene.free_parameters():
+        if name in fixed:
+            continue
+        if name.startswith("m"):
+            out[name] = float(rng.uniform(ma, mb))
+            continue
+        hi = min(fb, math.tan(scene.ramp.angle) - margin) if name == "k1" else fb
+        if hi <= fa:
+            raise GalileoError(f"no friction in [{fa}, {hi:.3g}] lets object 1 slide on a "
+                               f"{scene.ramp.angle_deg} degree ramp; use a steeper ramp or widen priors.friction")
+        out[name] = float(rng.uniform(fa, hi))
+    out.update({k: float(v) for k, v in fixed.items() if v is not None})
+    return out
+
+
+# --------------------------------------------------------------------------- physics
+
+
+def set_physics(model: mujoco.MjModel, data: mujoco.MjData, index: ModelIndex, params: PhysParams) -> None:
+    """Write masses and frictions into a C model, as ``simulate.apply_params`` does in MJX.
+
+    Mass m_i sets ``body_mass`` and scales ``body_inertia`` by m_i / m_i0; friction k_i goes into
+    ``pair_friction[pid, 0:2]`` of each pair of object i with the ramp and floor; then
+    ``mj_setConst`` recomputes ``body_invweight0`` / ``dof_invweight0`` (in place).
+    """
+    for i, b in enumerate(index.body):
+        m = float(params.mass[i])
+        model.body_inertia[b] *= m / model.body_mass[b]
+        model.body_mass[b] = m
+        for pid in index.pairs[i]:
+            model.pair_friction[pid, 0:2] = float(params.friction[i])
+    mujoco.mj_setConst(model, data)
+
+
+def _centres(qpos: np.ndarray, index: ModelIndex) -> np.ndarray:
+    """(..., nq) -> (..., n_objects, 2) world (x, z) of the object centres in m."""
+    return np.stack([qpos[..., [a, a + 2]] for a in index.qpos], axis=-2)
+
+
+def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: int,
+                    n_frames: int | None = None, max_seconds: float = MAX_SECONDS,
+                    settle_seconds: float = SETTLE_SECONDS) -> Motion:
+    """Simulate the scene in C MuJoCo and sample it at the video's frames.
+
+    Args:
+        scene: the scene (its ``simulation.substeps`` sets the timestep).
+        params: masses and frictions, (n_objects,) each.
+        fps: frames per second.
+        rest_frames: frames before release.
+        n_frames: total frames; ``None``: until every object has been at rest (slower than
+            :data:`REST_SPEED`) for ``settle_seconds``, at most ``max_seconds`` of video.
+        max_seconds: cap of the automatic length in s.
+        settle_seconds: rest time that ends an automatic-length video, in s.
+
+    Returns:
+        :class:`Motion`.
+
+    Raises:
+        GalileoError: the simulation diverged.
+    """
+    substeps = scene.simulation.substeps
+    model, index = build_model(scene, timestep=physics_timestep(fps, substeps))
+    data = mujoco.MjData(model)
+    set_physics(model, data, index, params)
+    mujoco.mj_forward(model, data)
+    limit = n_frames if n_frames is not None else max(rest_frames + 2, int(round(max_seconds * fps)))
+    settle = max(1, int(round(settle_seconds * fps)))
+    frames = [data.qpos.copy()] * (rest_frames + 1)
+    still = 0
+    while len(frames) < limit:
+        mujoco.mj_step(model, data, nstep=substeps)
+        if not np.all(np.isfinite(data.qpos)):
+            raise GalileoError("the simulation diverged (non-finite state); check the masses and frictions")
+        frames.append(data.qpos.copy())
+        step = np.linalg.norm(_centres(frames[-1], index) - _centres(frames[-2], index), axis=-1)
+        still = still + 1 if np.all(step < REST_SPEED / fps) else 0
+        if n_frames is None and still >= settle:
+            break
+    qpos = np.stack(frames)
+    return Motion(qpos, _centres(qpos, index), rest_frames, fps)
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+def _renderer(model: mujoco.MjModel, view: render.View) -> mujoco.Renderer:
+    try:
+        return mujoco.Renderer(model, view.height, view.width)
+    except Exception as err:  # noqa: BLE001 - any GL failure becomes one user-facing line
+        backend = os.environ.get("MUJOCO_GL", "")
+        raise GalileoError(f"cannot create an OpenGL context for rendering (MUJOCO_GL={backend}: "
+                           f"{str(err).splitlines()[0] if str(err) else type(err).__name__}); install "
+                           f"libegl1 libegl-mesa0 libopengl0 libgl1-mesa-dri, or set MUJOCO_GL=osmesa") from None
+
+
+def render_frames(model: mujoco.MjModel, view: render.View, qpos: np.ndarray, hand_pos: np.ndarray | None = None,
+                  hand_quat: np.ndarray | None = None, noise_sd: float = 0.0,
+                  rng: np.random.Generator | None = None) -> Iterator[np.ndarray]:
+    """Render frames of the front camera.
+
+    Args:
+        model: render model from :func:`galileo_jax.render.build_render_model`.
+        view: its view (image size).
+        qpos: (N, nq) generalised positions, one row per frame.
+        hand_pos: (N, 3) hand mocap position per frame in m, or None (no hand).
+        hand_quat: (4,) hand orientation.
+        noise_sd: SD of Gaussian pixel noise in grey levels (0..255), independent per pixel
+            and channel.
+        rng: noise generator.
+
+    Yields:
+        (H, W, 3) uint8 BGR frames.
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    data = mujoco.MjData(model)
+    renderer = _renderer(model, view)
+    try:
+        for k in range(qpos.shape[0]):
+            data.qpos[:] = qpos[k]
+            if hand_pos is not None:
+                data.mocap_pos[0] = hand_pos[k]
+                data.mocap_quat[0] = hand_quat
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            renderer.update_scene(data, camera=render.CAMERA)
+            rgb = renderer.render()
+            if noise_sd > 0:
+                noisy = rng.standard_normal(rgb.shape, dtype=np.float32)
+                noisy *= np.float32(noise_sd)
+                noisy += rgb
+                rgb = np.clip(np.rint(noisy, out=noisy), 0, 255, out=noisy).astype(np.uint8)
+            yield np.ascontiguousarray(rgb[:, :, ::-1])
+    finally:
+        renderer.close()
+
+
+def _temp_path(path: Path) -> Path:
+    """A new empty file beside ``path`` (same suffix), with the usual permissions (umask)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".tmp", dir=path.parent)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    return Path(tmp)
+
+
+def _json_text(record: dict) -> str:
+    """JSON with one top-level key per line and one frame per line for per-frame arrays."""
+    lines = []
+    for key, value in record.items():
+        if isinstance(value, list) and value and isinstance(value[0], list):
+            rows = ",\n  ".join(json.dumps(row) for row in value)
+            lines.append(f" {json.dumps(key)}: [\n  {rows}\n ]")
+        else:
+            lines.append(f" {json.dumps(key)}: {json.dumps(value)}")
+    return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = _temp_path(path)
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_video(path: Path, frames: Iterator[np.ndarray], fps: float, size: tuple[int, int], n_frames: int,
+                progress: bool = True) -> float:
+    """Write BGR frames to an mp4 (mp4v) atomically; returns the container's frame rate.
+
+    Args:
+        path: output ``.mp4``.
+        frames: iterator of (H, W, 3) uint8 BGR frames.
+        fps: frames per second.
+        size: (width, height) in px.
+        n_frames: number of frames (for the progress bar).
+        progress: show a tqdm bar.
+    """
+    tmp = _temp_path(path)
+    try:
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        if not writer.isOpened():
+            raise GalileoError(f"cannot write video {path} (OpenCV has no mp4v encoder?)")
+        try:
+            for frame in tqdm(frames, total=n_frames, desc=f"rendering {path.name}", unit="frame",
+                              disable=not progress, leave=False):
+                writer.write(frame)
+        finally:
+            writer.release()
+        cap = cv2.VideoCapture(str(tmp))
+        container_fps = float(cap.get(cv2.CAP_PROP_FPS))
+        cap.release()
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return container_fps
+
+
+# --------------------------------------------------------------------------- truth and files
+
+
+def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.View, *, noise_sd: float,
+                 hand: bool, seed: int, video: str) -> dict:
+    """The ground-truth JSON record of a rendered video.
+
+    Keys: ``video`` (file name), ``scene`` (scene name), ``m1, k1, m2, k2`` (those of the
+    scene's objects; kg and dimensionless), ``phi`` = (m1 - m2) / (m1 + m2) (two objects),
+    ``fps``, ``release_time`` (s), ``release_frame``, ``n_frames``, ``width``, ``height``
+    (px), ``noise_sd`` (grey levels), ``hand``, ``seed``, ``substeps``, ``pixels_per_metre``,
+    ``foot_pixel`` ([u, v]), ``moved`` (per object, whether it moved more than 1 mm),
+    ``pixels`` (N x n_objects x [u, v]: each object's centre in the image, px) and
+    ``positions`` (N x n_objects x [x, z]: world x and vertical of each centre, m).
+    """
+    rec = {"video": video, "scene": scene.name}
+    rec.update(param_dict(params))
+    if scene.n_objects == 2:
+        m1, m2 = (float(m) for m in params.mass)
+        rec["phi"] = (m1 - m2) / (m1 + m2)
+    travel = np.linalg.norm(motion.positions - motion.positions[0], axis=-1).max(axis=0)
+    rec.update({
+        "fps": motion.fps, "release_time": motion.release_time, "release_frame": motion.release_frame,
+        "n_frames": motion.n_frames, "width": view.width, "height": view.height, "noise_sd": noise_sd,
+        "hand": hand, "seed": seed, "substeps": scene.simulation.substeps,
+        "pixels_per_metre": view.scale, "foot_pixel": list(view.foot_pixel),
+        "moved": [bool(d > 1e-3) for d in travel],
+        "pixels": np.round(view.world_to_pixel(motion.positions), 4).tolist(),
+        "positions": np.round(motion.positions, 7).tolist(),
+    })
+    return rec
+
+
+def calibrated_scene(scene: Scene, view: render.View, container_fps: float, fps: float) -> Scene:
+    """The scene with the exact camera calibration; ``video`` holds only ``fps``, and only when
+    the container's frame rate differs from ``fps`` (an input ``video`` block described another
+    video and is dropped)."""
+    video = Video() if math.isclose(container_fps, fps, rel_tol=1e-4) else Video(fps=fps)
+    return scene.model_copy(update={"camera": view.camera_block(), "video": video})
+
+
+def _check_options(fps: float, duration: float | None, width: int, height: int, noise_sd: float,
+                   rest_frames: int) -> None:
+    if not (math.isfinite(fps) and 1 <= fps <= 1000):
+        raise GalileoError(f"--fps {fps}: give a frame rate in [1, 1000] frames per second")
+    if not (16 <= width <= 4096 and 16 <= height <= 4096 and width % 2 == 0 and height % 2 == 0):
+        raise GalileoError(f"image size {width}x{height}: give even sizes in [16, 4096] px")
+    if not (math.isfinite(noise_sd) and 0 <= noise_sd <= 100):
+        raise GalileoError(f"--noise {noise_sd}: give a pixel noise SD in [0, 100] grey levels")
+    if rest_frames < 1:
+        raise GalileoError(f"rest_frames = {rest_frames}: need at least one frame before release")
+    if duration is not None:
+        if not (math.isfinite(duration) and 0 < duration <= 120):
+            raise GalileoError(f"--duration {duration}: give a length in (0, 120] s")
+        if int(round(duration * fps)) < rest_frames + 2:
+            raise GalileoError(f"--duration {duration} s leaves no frames after the release at "
+                               f"{rest_frames / fps:.3g} s; make it longer")
+
+
+def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration: float | None = None,
+                 width: int = 640, height: int = 360, noise_sd: float = 2.0, hand: bool = False,
+                 rest_frames: int | None = None, seed: int = 0, progress: bool = True) -> dict:
+    """Simulate and render one ramp video with its calibrated scene file and ground truth.
+
+    Args:
+        scene: the scene (start positions, shapes; its camera block is replaced).
+        params: ``{"m1", "k1", "m2", "k2"}`` or :class:`PhysParams` (see :func:`resolve_params`).
+        out_path: the ``.mp4`` to write; ``<stem>.yaml`` and ``<stem>.truth.json`` go beside it.
+        fps: frames per second.
+        duration: video length in s (rest frames included); ``None``: until all objects have
+            rested for 0.5 s, at most 4 s.
+        width, height: image size in px (even).
+        noise_sd: SD of Gaussian pixel noise in grey levels.
+        hand: show a hand holding object 1 until the release, then leaving the frame.
+        rest_frames: frames at rest before release (default ``round(0.3 * fps)``).
+        seed: seed of the pixel noise.
+        progress: show a progress bar.
+
+    Returns:
+        The truth record (as written to ``<stem>.truth.json``; see :func:`truth_record`).
+
+    Raises:
+        GalileoError: bad parameters or options, or rendering is unavailable.
+    """
+    out_path = Path(out_path)
+    if out_path.suffix.lower() != ".mp4":
+        raise GalileoError(f"output {out_path} must end in .mp4")
+    if not out_path.parent.is_dir():
+        raise GalileoError(f"output folder {out_path.parent} does not exist; create it first")
+    rest_frames = max(1, int(round(REST_SECONDS * fps))) if rest_frames is None else int(rest_frames)
+    _check_options(fps, duration, width, height, noise_sd, rest_frames)
+    phys = resolve_params(scene, params)
+    n_frames = None if duration is None else int(round(duration * fps))
+    motion = simulate_motion(scene, phys, fps, rest_frames, n_frames)
+    if hand and n_frames is None:  # let the hand leave the frame before the video ends
+        min_frames = rest_frames + int(math.ceil((render.HAND_EXIT_TIME + 0.1) * fps))
+        if motion.n_frames < min_frames:
+            motion = simulate_motion(scene, phys, fps, rest_frames, min_frames)
+    view = render.frame_view(scene, motion.positions, width, height)
+    model = render.build_render_model(scene, view, physics_timestep(fps, scene.simulation.substeps), hand=hand)
+    hand_pos = hand_quat = None
+    if hand:
+        hand_quat = render.hand_rest_pose(scene)[1]
+        hand_pos = np.stack([render.hand_position(scene, view, t, motion.release_time) for t in motion.frame_times])
+    frames = render_frames(model, view, motion.qpos, hand_pos, hand_quat, noise_sd, np.random.default_rng(seed))
+    container_fps = write_video(out_path, frames, fps, (width, height), motion.n_frames, progress)
+    truth = truth_record(scene, phys, motion, view, noise_sd=noise_sd, hand=hand, seed=seed, video=out_path.name)
+    yaml_path = out_path.with_suffix(".yaml")
+    tmp = _temp_path(yaml_path)
+    try:
+        save_scene(calibrated_scene(scene, view, container_fps, fps), tmp)
+        os.replace(tmp, yaml_path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    _atomic_write_text(out_path.with_suffix(".truth.json"), _json_text(truth))
+    return truth
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, no usage dump
+        raise GalileoError(f"{message}; see python -m galileo_jax.synth --help")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m galileo_jax.synth",
+                description="Render a synthetic ramp video (mp4) with its calibrated scene (.yaml) and "
+                            "ground truth (.truth.json).")
+    p.add_argument("--scene", required=True, help="scene YAML file (e.g. scenes/ramp_20.yaml)")
+    for name, what in (("m1", "mass of object 1 (kg)"), ("k1", "friction coefficient of object 1"),
+                       ("m2", "mass of object 2 (kg)"), ("k2", "friction coefficient of object 2")):
+        p.add_argument(f"--{name}", type=float, help=what)
+    p.add_argument("--out", required=True, help="output .mp4 file, or a folder (created if missing)")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    p.add_argument("--duration", type=float, help="video length in s (default: until at rest, at most 4 s)")
+    p.add_argument("--noise", type=float, default=2.0, help="pixel noise SD in grey levels (default 2)")
+    p.add_argument("--hand", action="store_true", help="show a hand holding object 1 until the release")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise and of --random draws")
+    p.add_argument("--random", type=int, metavar="N", help="render N videos with random free parameters "
+                   "(k1 < tan(theta) - 0.05 so object 1 slides); given --m1 etc. are kept fixed")
+    p.add_argument("--width", type=int, default=640, help="image width in px (default 640)")
+    p.add_argument("--height", type=int, default=360, help="image height in px (default 360)")
+    p.add_argument("--rest", type=float, default=REST_SECONDS, help="seconds held at rest before release (default 0.3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _outputs(out: str, stem: str, count: int, random: bool) -> list[Path]:
+    path = Path(out)
+    if path.suffix.lower() == ".mp4":
+        if random:
+            raise GalileoError(f"--random needs --out to be a folder, not {out}")
+        if path.parent.exists() and not path.parent.is_dir():
+            raise GalileoError(f"--out {out}: {path.parent} is a file, not a folder")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return [path]
+    if path.exists() and not path.is_dir():
+        raise GalileoError(f"--out {out} is a file; give a folder or a .mp4 path")
+    path.mkdir(parents=True, exist_ok=True)
+    if not random:
+        return [path / f"{stem}.mp4"]
+    return [path / f"{stem}_{i:03d}.mp4" for i in range(count)]
+
+
+@cli_entry
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point (``python -m galileo_jax.synth``); returns the exit code."""
+    args = _parser().parse_args(argv)
+    scene = load_scene(args.scene)
+    given = {k: getattr(args, k) for k in ("m1", "k1", "m2", "k2") if getattr(args, k) is not None}
+    extra = [k for k in given if int(k[1]) > scene.n_objects]
+    if extra:
+        raise SceneError(f"--{extra[0]} given but scene {args.scene} has {scene.n_objects} object(s)")
+    if args.random is not None and not 1 <= args.random <= 10000:
+        raise GalileoError(f"--random {args.random}: give a count in [1, 10000]")
+    if not math.isfinite(args.rest) or args.rest <= 0:
+        raise GalileoError(f"--rest {args.rest}: give a positive time in s")
+    count = args.random or 1
+    paths = _outputs(args.out, scene.name.replace(" ", "_"), count, args.random is not None)
+    rng = np.random.default_rng(args.seed)
+    for i, path in enumerate(paths):
+        params = draw_random_params(scene, rng, fixed=given) if args.random else given
+        truth = render_video(scene, params, path, fps=args.fps, duration=args.duration, width=args.width,
+                             height=args.height, noise_sd=args.noise, hand=args.hand,
+                             rest_frames=max(1, int(round(args.rest * args.fps))), seed=args.seed + i,
+                             progress=not args.quiet)
+        values = ", ".join(f"{k}={truth[k]:.4g}" for k in ("m1", "k1", "m2", "k2") if k in truth)
+        print(f"{path}: {truth['n_frames']} frames at {truth['fps']:g} fps, {values}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
