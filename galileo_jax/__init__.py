@@ -11,4 +11,10 @@ Only the mass ratio phi = (m1 - m2) / (m1 + m2) is identifiable from velocities;
 absolute mass scale is fixed only by a known mass in the scene file.
 """
 
+import os as _os
+
+# FFmpeg (inside OpenCV) logs container errors itself; we report them as one-line errors.
+_os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+_os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+
 __version__ = "0.1.0"

@@ -30,6 +30,7 @@ that names the offending key and what is expected.
 
 from __future__ import annotations
 
+import difflib
 import math
 from pathlib import Path
 from typing import Annotated, Literal
@@ -72,7 +73,10 @@ class SceneObject(_Strict):
     ``size``: box ``[length, width, height]`` (full extents, m; length along the motion),
     cylinder ``[radius, height]`` (standing on a flat face), sphere ``[radius]``.
     ``mass`` (kg) and ``friction`` (sliding friction coefficient on ramp and floor) are
-    known when given and free parameters when ``null``/absent.
+    known when given and free parameters when ``null``/absent. ``tracker`` chooses how the
+    object is followed in the video: ``features`` (KLT on its texture), ``outline`` (a round
+    outline, for rolling spheres or a pipe seen end-on, whose features turn with it) or
+    ``auto`` (outline for spheres, features otherwise).
     """
 
     name: str | None = None
@@ -83,6 +87,7 @@ class SceneObject(_Strict):
     mass: PositiveFloat | None = None
     friction: float | None = Field(default=None, ge=0)
     rgba: tuple[float, float, float, float] | None = None
+    tracker: Literal["auto", "features", "outline"] = "auto"
 
     @model_validator(mode="after")
     def _check_size(self) -> "SceneObject":
@@ -244,15 +249,39 @@ class Scene(_Strict):
         return any(o.mass is not None for o in self.objects)
 
 
+def _known_keys(loc: tuple) -> list[str]:
+    """Field names allowed at the parent of ``loc`` (for "did you mean" hints)."""
+    model: type[BaseModel] | None = Scene
+    for part in loc[:-1]:
+        if isinstance(part, int) or model is None:
+            continue
+        field = model.model_fields.get(str(part))
+        if field is None:
+            return []
+        ann = field.annotation
+        args = [a for a in getattr(ann, "__args__", (ann,)) if isinstance(a, type)]
+        nested = [a for a in args if issubclass(a, BaseModel)]
+        if not nested:
+            inner = [b for a in getattr(ann, "__args__", ()) for b in getattr(a, "__args__", (a,))]
+            nested = [a for a in inner if isinstance(a, type) and issubclass(a, BaseModel)]
+        model = nested[0] if nested else None
+    return list(model.model_fields) if model is not None else []
+
+
 def _format_validation_error(path: str, err: ValidationError) -> str:
-    first = err.errors()[0]
+    errors = err.errors()
+    # An unknown (misspelt) key explains the "missing" errors it causes: report it first.
+    errors.sort(key=lambda e: e["type"] != "extra_forbidden")
+    first = errors[0]
     loc = ".".join(str(p) for p in first["loc"]) or "(top level)"
     msg = first["msg"].removeprefix("Value error, ")
     if first["type"] == "extra_forbidden":
-        msg = "unknown key (check the spelling; see scenes/ramp_20.yaml for the format)"
+        close = difflib.get_close_matches(str(first["loc"][-1]), _known_keys(first["loc"]), n=1)
+        hint = f"did you mean '{close[0]}'?" if close else "see scenes/ramp_20.yaml for the format"
+        msg = f"unknown key ({hint})"
     elif first["type"] == "missing":
         msg = "required key is missing"
-    more = f" (and {len(err.errors()) - 1} more problems)" if len(err.errors()) > 1 else ""
+    more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
     return f"scene file {path}: {loc}: {msg}{more}"
 
 

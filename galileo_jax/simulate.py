@@ -20,6 +20,8 @@ depend on the masses only through their ratio (tested in ``tests/test_physics.py
 
 from __future__ import annotations
 
+import contextlib
+import io
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -27,7 +29,11 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+
+# mujoco-mjx prints "Failed to import warp" when its optional Warp backend is absent; we use
+# the JAX backend, so keep that line off the user's screen.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 
 from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model
 from galileo_jax.scene import Scene

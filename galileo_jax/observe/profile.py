@@ -164,15 +164,33 @@ def _positions(pixels: np.ndarray, start_px: np.ndarray, scene: Scene) -> np.nda
     return out
 
 
-def _mask(frame_times: np.ndarray, valid: np.ndarray, release: float, scene: Scene, fps: float) -> np.ndarray:
-    """(N-1,) fit mask: the scene's window, else from 2 frames before the release; and only
-    samples where every object was measured at both ends."""
+#: Seconds of "all at rest" kept in the fit window after the last observed motion: long
+#: enough to show a simulation that stops too late, short enough not to simulate dead time.
+REST_MARGIN_S = 0.4
+
+
+def _last_motion(pixels: np.ndarray, valid: np.ndarray, sigma_px: np.ndarray) -> int:
+    """Index of the last velocity sample in which any object moves by more than its noise
+    (4 sqrt(2) position SDs, at least 0.5 px per frame)."""
+    step = np.linalg.norm(np.diff(pixels, axis=0), axis=-1)  # (N-1, n)
+    ok = valid[:-1] & valid[1:]
+    moving = ok & (step > np.maximum(0.5, 4.0 * np.sqrt(2.0) * sigma_px)[None, :])
+    idx = np.flatnonzero(moving.any(axis=1))
+    return int(idx[-1]) if idx.size else len(step) - 1
+
+
+def _mask(frame_times: np.ndarray, valid: np.ndarray, release: float, scene: Scene, fps: float,
+          last_motion: int) -> np.ndarray:
+    """(N-1,) fit mask: the scene's window, else from 2 frames before the release to
+    :data:`REST_MARGIN_S` after the last observed motion; and only samples where every object
+    was measured at both ends."""
     t0, t1 = frame_times[:-1], frame_times[1:]
     if scene.video.window is not None:
         lo, hi = scene.video.window
         mask = (t0 >= lo - 1e-9) & (t1 <= hi + 1e-9)
     else:
         mask = t1 >= release - PRE_RELEASE_FRAMES / fps
+        mask &= np.arange(len(t0)) <= last_motion + int(round(REST_MARGIN_S * fps))
     both = valid.all(axis=1)
     return mask & both[:-1] & both[1:]
 
@@ -241,7 +259,8 @@ def observation_from_tracks(tracks: Tracks, scene: Scene, fps: float, anchor_fra
     return Observation(
         frame_times=times, positions=positions, pixels=pixels,
         profile=profile_from_positions(positions, times), position_sd=sd,
-        mask=_mask(times, valid, release, scene, fps), release_time=release, fps=float(fps), moved=moved,
+        mask=_mask(times, valid, release, scene, fps, _last_motion(pixels, valid, sd.reshape(n, 2).max(axis=1) * scale)),
+        release_time=release, fps=float(fps), moved=moved,
     )
 
 

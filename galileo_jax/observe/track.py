@@ -720,9 +720,10 @@ def path_direction(scene: Scene, calib: Calibration, i: int) -> np.ndarray:
 
 
 def is_round(scene: Scene, i: int) -> bool:
-    """Whether object ``i`` rolls (a sphere): it is then tracked by its outline
-    (:func:`track_circles`), not by KLT features that turn with it."""
-    return scene.objects[i].shape == "sphere"
+    """Whether object ``i`` is tracked by its round outline (:func:`track_circles`), not by
+    KLT features that turn with it: ``tracker: outline``, or a sphere with ``tracker: auto``."""
+    obj = scene.objects[i]
+    return obj.tracker == "outline" or (obj.tracker == "auto" and obj.shape == "sphere")
 
 
 def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibration, *, start_frame: int = 0,

@@ -1,0 +1,94 @@
+"""Settings of ``fit``: defaults here, mirrored in ``configs/fit.yaml``; override with
+``--config FILE`` (same keys, any subset) and command-line flags.
+
+Errors: :func:`load_config` raises :class:`~galileo_jax.errors.ConfigError` (one line naming
+the key) for unknown keys, wrong types or impossible values.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from galileo_jax.errors import GalileoError
+
+
+class ConfigError(GalileoError):
+    """The fit configuration file is missing or invalid."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class MHConfig(_Strict):
+    """Random-walk Metropolis-Hastings: chains advanced together, warm-up and kept steps."""
+
+    chains: int = Field(16, ge=2, le=1024)
+    warmup: int = Field(300, ge=0)
+    samples: int = Field(400, ge=10)
+
+
+class SeedMHConfig(_Strict):
+    """The seed's sampler (dissertation Algorithm 1): 16 chains x 75 steps."""
+
+    chains: int = Field(16, ge=1, le=1024)
+    steps: int = Field(75, ge=1)
+
+
+class GradConfig(_Strict):
+    """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind."""
+
+    starts: int = Field(8, ge=1, le=256)
+    max_steps: int = Field(40, ge=1)
+    jacobian: Literal["fd", "ad"] = "fd"
+
+
+class LikelihoodConfig(_Strict):
+    """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise."""
+
+    kind: str = "gaussian_ma1"
+    sd_model: float = Field(0.01, ge=0)
+
+
+class PredictionConfig(_Strict):
+    """Prediction beyond the video: seconds simulated after it, posterior draws used."""
+
+    tail: float = Field(3.0, ge=0, le=60)
+    draws: int = Field(32, ge=1, le=1024)
+
+
+class FitConfig(_Strict):
+    """All settings of one ``fit`` run."""
+
+    mh: MHConfig = MHConfig()
+    seed_mh: SeedMHConfig = SeedMHConfig()
+    grad: GradConfig = GradConfig()
+    likelihood: LikelihoodConfig = LikelihoodConfig()
+    prediction: PredictionConfig = PredictionConfig()
+
+
+def load_config(path: str | Path | None) -> FitConfig:
+    """Read a YAML config (any subset of :class:`FitConfig`'s keys); ``None`` gives the defaults.
+
+    Raises:
+        ConfigError: missing file, invalid YAML, unknown key or bad value.
+    """
+    if path is None:
+        return FitConfig()
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {path} not found; see configs/fit.yaml for the format")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+        return FitConfig.model_validate(data)
+    except yaml.YAMLError:
+        raise ConfigError(f"config file {path} is not valid YAML; fix the syntax") from None
+    except ValidationError as err:
+        first = err.errors()[0]
+        loc = ".".join(str(p) for p in first["loc"])
+        msg = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
+        raise ConfigError(f"config file {path}: {loc}: {msg} (see configs/fit.yaml)") from None

@@ -1,0 +1,276 @@
+"""One fit from video to written results: the library function behind ``fit``.
+
+:func:`run_fit` observes the video, builds the inference :class:`Problem`, runs the chosen
+method, simulates the estimate (and posterior draws) over the whole video and beyond, and
+writes ``result.json``, ``profiles.png`` and ``overlay.mp4`` atomically into the output
+folder. It returns a :class:`FitReport` for the console summary.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from galileo_jax.calibration import calibration
+from galileo_jax.config import FitConfig
+from galileo_jax.errors import GalileoError
+from galileo_jax.inference.problem import Problem
+from galileo_jax.observation import Observation
+from galileo_jax.predict import RestPrediction, predict_rest, slides
+from galileo_jax.report.figures import profile_figure, trace_names
+from galileo_jax.report.results import package_versions, write_json
+from galileo_jax.scene import Scene
+from galileo_jax.simulate import PhysParams, rollout, sample_poses, steps_needed
+
+
+@dataclass
+class FitReport:
+    """Everything a fit produced (plain NumPy / Python values).
+
+    Attributes:
+        video: path of the video.
+        scene: the scene.
+        method: "grad", "mh" or "seed".
+        observation: the tracked :class:`Observation`.
+        parameters: per reported parameter (k1, k2, phi, m1, m2 as applicable) a dict with
+            ``estimate``, ``mean``, ``median``, ``sd``, ``interval90`` [lo, hi], ``best``,
+            ``identifiable`` and, for mh, ``r_hat``, ``ess_bulk``.
+        diagnostics: method diagnostics (acceptance, iterations, convergence, timings ...).
+        simulated: (2n, N-1) simulated profile at the estimate, whole video, m/s.
+        band: (2, 2n, N-1) 90% posterior-predictive band (m/s) or None.
+        rmse: per trace RMSE of observed - simulated (m/s) over the fit window.
+        prediction: rest positions and "will it slide?" beyond the video.
+        outputs: paths written.
+        timings: seconds per stage.
+    """
+
+    video: Path
+    scene: Scene
+    method: str
+    observation: Observation
+    parameters: dict
+    diagnostics: dict
+    simulated: np.ndarray
+    band: np.ndarray | None
+    rmse: dict
+    prediction: dict
+    outputs: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
+    """Add ``estimate`` (the entry's ``key`` value) to each parameter entry of a summary."""
+    params = summary_dict["parameters"]
+    for entry in params.values():
+        entry["estimate"] = entry.get(key)
+    return params, summary_dict["diagnostics"]
+
+
+def _grad_draws(res, space, key, n: int) -> np.ndarray:
+    """(n, d) draws of theta from the Gauss-Newton normal approximation N(z_hat, cov_z)."""
+    z = jax.random.multivariate_normal(key, jnp.asarray(res.z), jnp.asarray(res.cov_z), (n,))
+    return np.asarray(jax.vmap(space.from_unconstrained)(z))
+
+
+def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool):
+    """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None)."""
+    from galileo_jax.inference import summary
+
+    k_run, k_sum = jax.random.split(key)
+    if method == "grad":
+        from galileo_jax.inference.grad import fit_grad
+
+        res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, jacobian=cfg.grad.jacobian,
+                       max_steps=cfg.grad.max_steps)
+        params, diag = _with_estimate(summary.summarize_grad(res, problem.space), "mean")
+        draws = _grad_draws(res, problem.space, k_sum, cfg.prediction.draws)
+        return params, diag, np.asarray(res.theta), draws
+    if method == "mh":
+        from galileo_jax.inference.mh import run_mh
+
+        res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
+                     progress=progress)
+        params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
+        flat = res.theta.reshape(-1, res.theta.shape[-1])
+        idx = np.random.default_rng(0).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
+        return params, diag, np.asarray(res.best_theta), flat[idx]
+    if method == "seed":
+        from galileo_jax.inference.seed_mh import run_seed_mh
+
+        res = run_seed_mh(problem, k_run, n_chains=cfg.seed_mh.chains, n_steps=cfg.seed_mh.steps, progress=progress)
+        params = {name: {"estimate": float(v), "best": float(v), "identifiable": name not in ("m1", "m2")
+                         or problem.scene.mass_scale_known()} for name, v in res.best.items()}
+        diag = {"best_similarity": float(res.best_similarity), "acceptance": float(np.mean(res.accepted)),
+                "likelihood": res.likelihood, "time_s": float(res.time_s)}
+        theta = np.array([params[n]["estimate"] for n in problem.space.names])
+        return params, diag, theta, None
+    raise GalileoError(f"unknown method {method!r}; choose grad, mh or seed")
+
+
+def _simulate_batch(problem: Problem, thetas: np.ndarray) -> np.ndarray:
+    """(S, d) thetas -> (S, 2n, N-1) simulated profiles over the whole video."""
+    return np.asarray(problem.simulate(jnp.asarray(thetas)))
+
+
+def _rmse(obs: Observation, simulated: np.ndarray) -> dict:
+    names = trace_names(obs.n_objects)
+    m = np.asarray(obs.mask, bool)
+    diff = (obs.profile - simulated)[:, m]
+    rmse = np.sqrt(np.mean(diff ** 2, axis=1))
+    out = {name: {"rmse": float(r), "noise_sd": float(s), "ratio": float(r / s)}
+           for name, r, s in zip(names, rmse, obs.velocity_sd)}
+    out["all"] = {"rmse": float(np.sqrt(np.mean(diff ** 2)))}
+    return out
+
+
+def _prediction(problem: Problem, scene: Scene, obs: Observation, theta_best: np.ndarray,
+                draws: np.ndarray | None, tail: float) -> dict:
+    duration = float(obs.frame_times[-1] - obs.release_time) + tail
+    thetas = theta_best[None] if draws is None else np.concatenate([theta_best[None], draws])
+    phys = problem.space.physical(jnp.asarray(thetas))
+    rest: RestPrediction = predict_rest(problem.sim, phys, duration)
+    k1 = np.asarray(phys.friction)[:, 0]
+    out = {"simulated_seconds_after_release": duration, "objects": []}
+    for i in range(scene.n_objects):
+        x = rest.rest_x[:, i]
+        entry = {
+            "object": i + 1,
+            "rest_x_m": float(x[0]),
+            "distance_past_foot_m": float(x[0]),
+            "stop_time_after_release_s": None if np.isnan(rest.stop_time[0, i]) else float(rest.stop_time[0, i]),
+            "still_moving_at_end": bool(rest.moving_at_end[0, i]),
+        }
+        if draws is not None:
+            entry["rest_x_interval90_m"] = [float(np.quantile(x[1:], 0.05)), float(np.quantile(x[1:], 0.95))]
+        out["objects"].append(entry)
+    tan = math.tan(scene.ramp.angle)
+    out["will_object1_slide"] = {
+        "answer": bool(slides(scene, k1[0])),
+        "rule": f"slides from rest when k1 < tan(theta) = {tan:.3f}",
+        "probability": float(np.mean(slides(scene, k1[1:]))) if draws is not None else None,
+    }
+    return out
+
+
+def simulated_poses(problem: Problem, theta: np.ndarray) -> np.ndarray:
+    """(N, n_objects, 3) simulated poses (x m, z m, pitch rad) at the video's frame times."""
+    obs = problem.observation
+    sim = problem.sim
+    n = steps_needed(sim, max(float(obs.frame_times[-1] - obs.release_time), sim.dt))
+    phys = problem.space.physical(jnp.asarray(theta))
+    traj = jax.jit(lambda p: rollout(sim, p, n))(phys)
+    return np.asarray(sample_poses(traj, jnp.asarray(obs.frame_times - obs.release_time)))
+
+
+def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
+            seed: int = 0, overlay: bool = True, progress: bool = True) -> FitReport:
+    """Fit one video and write the results (see module docstring).
+
+    Args:
+        video: video path.
+        scene: validated scene of the video.
+        cfg: settings.
+        method: "grad", "mh" or "seed".
+        out: output folder (created; existing files are replaced atomically).
+        fps: frame-rate override.
+        seed: random seed.
+        overlay: write the overlay video.
+        progress: show progress bars.
+
+    Raises:
+        GalileoError: bad video, tracking failure, unknown method or likelihood.
+    """
+    from galileo_jax.observe import observe, read_video
+
+    timings = {}
+    t = time.perf_counter()
+    clip = read_video(video, fps_override=fps or scene.video.fps)
+    obs = observe(clip, scene, progress=progress)
+    timings["observe_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    try:
+        problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model)
+    except ValueError as err:
+        raise GalileoError(f"{err}") from None
+    key = jax.random.PRNGKey(seed)
+    parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress)
+    timings["inference_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    simulated = _simulate_batch(problem, theta_best[None])[0]
+    band = None
+    if draws is not None and len(draws) >= 8:
+        profiles = _simulate_batch(problem, draws)
+        band = np.quantile(profiles, [0.05, 0.95], axis=0)
+    rmse = _rmse(obs, simulated)
+    prediction = _prediction(problem, scene, obs, theta_best, draws, cfg.prediction.tail)
+    timings["simulate_and_predict_s"] = time.perf_counter() - t
+
+    report = FitReport(Path(video), scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
+                       timings=timings)
+    t = time.perf_counter()
+    _write_outputs(report, problem, theta_best, clip, out, cfg, seed, overlay, progress)
+    timings["write_s"] = time.perf_counter() - t
+    return report
+
+
+def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: Path, cfg: FitConfig, seed: int,
+                   overlay: bool, progress: bool) -> None:
+    obs = report.observation
+    out.mkdir(parents=True, exist_ok=True)
+    times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
+    fig = out / "profiles.png"
+    title = f"{report.video.name}: {report.method} fit, scene {report.scene.name}"
+    profile_figure(fig, times, obs.profile, report.simulated, obs.velocity_sd, np.asarray(obs.mask, bool),
+                   report.band, title)
+    report.outputs["figure"] = str(fig)
+    if overlay:
+        from galileo_jax.report.overlay import write_overlay
+
+        poses = simulated_poses(problem, theta_best)
+        calib = calibration(report.scene.camera, anchor_px=obs.pixels[0, 0], anchor_world=obs.positions[0, 0])
+        path = out / "overlay.mp4"
+        write_overlay(path, clip.frames, obs.fps, report.scene, calib, poses, obs.pixels,
+                      caption=f"simulated ({report.method})", progress=progress)
+        report.outputs["overlay"] = str(path)
+    result = {
+        "video": str(report.video),
+        "scene": report.scene.model_dump(mode="json"),
+        "method": report.method,
+        "parameters": report.parameters,
+        "identifiability": identifiability_statement(report.scene),
+        "diagnostics": report.diagnostics,
+        "rmse_per_trace_m_per_s": report.rmse,
+        "prediction": report.prediction,
+        "observation": {
+            "fps": obs.fps, "n_frames": int(len(obs.frame_times)), "release_time_s": obs.release_time,
+            "position_sd_m": obs.position_sd, "velocity_sd_m_per_s": obs.velocity_sd,
+            "moved": obs.moved, "fit_samples": int(np.sum(obs.mask)),
+        },
+        "settings": {**cfg.model_dump(), "seed": seed},
+        "timings_s": report.timings,
+        "versions": package_versions(),
+        "outputs": report.outputs,
+    }
+    path = out / "result.json"
+    write_json(path, result)
+    report.outputs["result"] = str(path)
+
+
+def identifiability_statement(scene: Scene) -> str:
+    """One plain sentence on what the video can determine about the masses."""
+    if scene.n_objects == 1:
+        return ("A lone sliding object's motion does not depend on its mass: the video determines k1 only; "
+                "m1 is not identifiable.")
+    if scene.mass_scale_known():
+        return "A known mass in the scene fixes the mass scale: m1 and m2 follow from phi = (m1 - m2)/(m1 + m2)."
+    return ("Velocities depend on the masses only through phi = (m1 - m2)/(m1 + m2): m1 and m2 are NOT separately "
+            "identifiable from the video (their values are the prior's, conditioned on phi). Give a known mass "
+            "in the scene file to fix the scale.")

@@ -1,0 +1,153 @@
+"""Bad input to the command line: one clear line on stderr, non-zero exit, no traceback
+(issue 2, "What it must show" 4)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "ramp20_example.mp4"
+
+
+def run_cli(module: str, *args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    env = dict(os.environ, MUJOCO_GL="egl", JAX_PLATFORMS="cpu")
+    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, cwd=cwd, env=env,
+                          timeout=600)
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *words: str) -> str:
+    assert proc.returncode != 0, proc.stdout
+    assert "Traceback" not in proc.stderr, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith(("tracking", "Failed to import"))]
+    assert len(lines) == 1, proc.stderr
+    line = lines[0]
+    assert line.startswith("error: "), line
+    for w in words:
+        assert w.lower() in line.lower(), (w, line)
+    return line
+
+
+def copy_example(tmp_path: Path, scene_text: str | None = None) -> Path:
+    video = tmp_path / "clip.mp4"
+    shutil.copy(EXAMPLE, video)
+    scene = EXAMPLE.with_suffix(".yaml").read_text() if scene_text is None else scene_text
+    (tmp_path / "clip.yaml").write_text(scene)
+    return video
+
+
+def test_missing_video(tmp_path):
+    assert_one_line_error(run_cli("galileo_jax.fit", str(tmp_path / "nope.mp4")), "not found")
+
+
+def test_not_a_video(tmp_path):
+    fake = tmp_path / "notes.mp4"
+    fake.write_text("this is not a video\n" * 50)
+    (tmp_path / "notes.yaml").write_text(EXAMPLE.with_suffix(".yaml").read_text())
+    assert_one_line_error(run_cli("galileo_jax.fit", str(fake)), "video")
+
+
+def test_missing_scene_file(tmp_path):
+    video = tmp_path / "clip.mp4"
+    shutil.copy(EXAMPLE, video)
+    assert_one_line_error(run_cli("galileo_jax.fit", str(video)), "--scene")
+
+
+@pytest.mark.parametrize("mutate, words", [
+    (lambda s: s.replace("ramp:", "rampp:"), ["rampp", "unknown key"]),
+    (lambda s: s.replace("angle_deg: 20.0", "angle_deg: steep"), ["angle_deg"]),
+    (lambda s: s.replace("angle_deg: 20.0", "angle_deg: 95"), ["angle_deg"]),
+    (lambda s: s.replace("start: 0.45", "start: 3.0"), ["start", "beyond"]),
+    (lambda s: "ramp: [unclosed\n", ["yaml"]),
+])
+def test_bad_scene_file(tmp_path, mutate, words):
+    video = copy_example(tmp_path, mutate(EXAMPLE.with_suffix(".yaml").read_text()))
+    assert_one_line_error(run_cli("galileo_jax.fit", str(video)), *words)
+
+
+def test_unknown_option_and_method(tmp_path):
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--frobnicate"), "--frobnicate")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--method", "magic"), "magic")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--chains", "0"), "--chains")
+
+
+def test_bad_config_file(tmp_path):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("mh: {chainz: 3}\n")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--config", str(cfg)), "chainz")
+
+
+def _write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> None:
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    for f in frames:
+        writer.write(f)
+    writer.release()
+
+
+def test_object_never_moves(tmp_path):
+    """A video of the scene in which nothing moves: the first frame of the example, repeated
+    (after the hand) -> 'never moves', naming what the video does say (k1 >= tan theta)."""
+    cap = cv2.VideoCapture(str(EXAMPLE))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    still = [frames[14]] * 60  # object 1 at rest, just before the release
+    video = tmp_path / "still.mp4"
+    _write_video(video, still)
+    (tmp_path / "still.yaml").write_text(EXAMPLE.with_suffix(".yaml").read_text())
+    line = assert_one_line_error(run_cli("galileo_jax.fit", str(video)), "never moves")
+    assert "tan" in line
+
+
+def test_track_lost(tmp_path):
+    """Object 1 vanishes mid-slide (painted over with the background): the track is lost."""
+    cap = cv2.VideoCapture(str(EXAMPLE))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    background = frames[-1].copy()
+    # from frame 28 on, replace the left part of the image (where object 1 slides) by a
+    # frame without object 1 there: the last frame's ramp region is empty.
+    for k in range(28, len(frames)):
+        frames[k] = frames[k].copy()
+        frames[k][:, :380] = background[:, :380]
+    video = tmp_path / "lost.mp4"
+    _write_video(video, frames)
+    (tmp_path / "lost.yaml").write_text(EXAMPLE.with_suffix(".yaml").read_text())
+    assert_one_line_error(run_cli("galileo_jax.fit", str(video)), "object 1")
+
+
+def test_synth_bad_input(tmp_path):
+    assert_one_line_error(run_cli("galileo_jax.synth", "--scene", str(tmp_path / "none.yaml"), "--out",
+                                  str(tmp_path / "x.mp4")), "not found")
+
+
+def test_existing_result_is_not_half_overwritten(tmp_path):
+    """An interrupted write leaves the previous file intact (atomic replace)."""
+    from galileo_jax.report.results import write_json
+
+    path = tmp_path / "result.json"
+    write_json(path, {"a": 1})
+
+    class Boom:
+        def __array__(self, *a, **k):
+            raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError):
+        write_json(path, {"a": Boom()})
+    assert path.read_text().strip().replace(" ", "").replace("\n", "") == '{"a":1}'
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"]
