@@ -42,7 +42,7 @@ class SeedMHConfig(_Strict):
 class GradConfig(_Strict):
     """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind."""
 
-    starts: int = Field(8, ge=1, le=256)
+    starts: int = Field(4, ge=1, le=256)
     max_steps: int = Field(40, ge=1)
     jacobian: Literal["fd", "ad"] = "fd"
 
@@ -50,8 +50,8 @@ class GradConfig(_Strict):
 class LikelihoodConfig(_Strict):
     """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise."""
 
-    kind: str = "gaussian_ma1"
-    sd_model: float = Field(0.01, ge=0)
+    kind: str = "gaussian_iid"
+    sd_model: float = Field(0.05, ge=0)
 
 
 class PredictionConfig(_Strict):

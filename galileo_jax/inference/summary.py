@@ -1,0 +1,189 @@
+"""Posterior and estimate summaries as plain dicts (JSON-ready), one shape for every method.
+
+:func:`summarize_mh` reduces MH draws with ArviZ (``az.from_dict``, ``az.rhat`` rank-normalised
+split R-hat, ``az.ess`` bulk ESS; Vehtari et al. 2021); :func:`summarize_grad` gives the same
+fields from the Gauss-Newton normal approximation of :func:`~galileo_jax.inference.grad.fit_grad`.
+
+Shape::
+
+    {"method": "mh" | "grad",
+     "parameters": {
+        name: {"mean", "median", "sd", "interval90": [lo, hi], "best",
+               "rhat", "ess_bulk",              # MH only (None for grad)
+               "identifiable": bool, "known": bool, "note": str},
+        ...},                                   # k1, k2, phi, m1, m2 as they apply
+     "diagnostics": {...}}
+
+Reported parameters: every free friction; phi = (m1 - m2) / (m1 + m2) for two-object scenes
+(sampled, derived from a free mass and a known one, or known); m1, m2. Masses are flagged
+``identifiable: False`` unless a mass is known: with both masses free, MH reports draws from
+the posterior under the uniform mass prior given phi (``ParamSpace.masses_for_report``), whose
+spread is the prior's, and grad reports no mass value. One-object scenes: the mass does not
+affect the motion and is flagged the same way. Known values are reported with
+``known: True`` and zero width.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from galileo_jax.params import ParamSpace
+
+NOT_IDENTIFIABLE = ("not identifiable: velocities determine only phi = (m1 - m2) / (m1 + m2); "
+                    "values are draws from the uniform mass prior given phi")
+NOT_IDENTIFIABLE_ONE = "not identifiable: a lone sliding object's motion does not depend on its mass"
+
+
+def phi_of(space: ParamSpace, theta) -> jax.Array | None:
+    """phi = (m1 - m2) / (m1 + m2) for theta (..., d); None for one-object scenes."""
+    if space.n_objects != 2:
+        return None
+    m = space.physical(jnp.asarray(theta, jnp.float32)).mass
+    return (m[..., 0] - m[..., 1]) / (m[..., 0] + m[..., 1])
+
+
+def _entry(**kw) -> dict:
+    base = {"mean": None, "median": None, "sd": None, "interval90": None, "best": None, "rhat": None,
+            "ess_bulk": None, "identifiable": True, "known": False, "note": ""}
+    base.update(kw)
+    return base
+
+
+def _f(x):
+    return None if x is None else float(x)
+
+
+def _draw_stats(x: np.ndarray, best: float | None, rhat: float, ess: float, **kw) -> dict:
+    return _entry(mean=float(np.mean(x)), median=float(np.median(x)), sd=float(np.std(x, ddof=1)),
+                  interval90=[float(np.quantile(x, 0.05)), float(np.quantile(x, 0.95))], best=_f(best),
+                  rhat=float(rhat), ess_bulk=float(ess), **kw)
+
+
+def _known(value: float, **kw) -> dict:
+    return _entry(mean=value, median=value, sd=0.0, interval90=[value, value], best=value, known=True, **kw)
+
+
+def summarize_mh(result, space: ParamSpace, key: jax.Array | None = None) -> dict:
+    """Summarise an :class:`~galileo_jax.inference.mh.MHResult`.
+
+    Arguments:
+        result: MH output with ``theta`` (chains, draws, d) and ``loglik`` (chains, draws).
+        space: the problem's :class:`ParamSpace`.
+        key: PRNG key for the mass draws (default ``jax.random.key(0)``).
+
+    Returns:
+        The dict described in the module docstring. ``best`` is the draw with the highest
+        log-likelihood. ``diagnostics``: n_chains, n_draws, acceptance (mean), max_rhat,
+        min_ess_bulk (over identifiable sampled parameters), seconds_per_step, best_loglik.
+
+    Raises:
+        ValueError: ``result.theta`` does not have shape (chains, draws, d) with d = space.dim.
+    """
+    import arviz as az
+
+    theta = np.asarray(result.theta, np.float64)
+    if theta.ndim != 3 or theta.shape[-1] != space.dim:
+        raise ValueError(f"result.theta must have shape (chains, draws, {space.dim}), got {theta.shape}")
+    key = jax.random.key(0) if key is None else key
+    loglik = np.asarray(result.loglik, np.float64)
+    ibest = np.unravel_index(np.argmax(loglik), loglik.shape)
+
+    draws: dict[str, np.ndarray] = {n: theta[..., j] for j, n in enumerate(space.names)}
+    phi = phi_of(space, theta)
+    if phi is not None and "phi" not in draws and space.mass_mode == "free":
+        draws["phi"] = np.asarray(phi, np.float64)
+    masses = np.asarray(space.masses_for_report(jnp.asarray(theta, jnp.float32), key), np.float64)
+    for i in range(space.n_objects):
+        if space.known_mass[i] is None and f"m{i + 1}" not in draws:
+            draws[f"m{i + 1}"] = masses[..., i]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        idata = az.from_dict(posterior=draws)
+        rhat = az.rhat(idata)
+        ess = az.ess(idata, method="bulk")
+
+    params: dict[str, dict] = {}
+    for i in range(space.n_objects):
+        name = f"k{i + 1}"
+        if name in draws:
+            params[name] = _draw_stats(draws[name], draws[name][ibest], rhat[name], ess[name])
+        else:
+            params[name] = _known(float(space.known_friction[i]))
+    if space.n_objects == 2:
+        if "phi" in draws:
+            params["phi"] = _draw_stats(draws["phi"], draws["phi"][ibest], rhat["phi"], ess["phi"])
+        else:
+            params["phi"] = _known(float(np.asarray(phi).ravel()[0]))
+    for i in range(space.n_objects):
+        name = f"m{i + 1}"
+        if space.known_mass[i] is not None:
+            params[name] = _known(float(space.known_mass[i]))
+        elif space.mass_identifiable:
+            params[name] = _draw_stats(draws[name], draws[name][ibest], rhat[name], ess[name])
+        else:
+            note = NOT_IDENTIFIABLE_ONE if space.n_objects == 1 else NOT_IDENTIFIABLE
+            params[name] = _draw_stats(draws[name], None, rhat[name], ess[name], identifiable=False, note=note)
+
+    sampled = [n for n, p in params.items() if p["identifiable"] and not p["known"]]
+    diagnostics = {
+        "n_chains": int(theta.shape[0]), "n_draws": int(theta.shape[1]),
+        "acceptance": float(np.mean(result.acceptance)),
+        "max_rhat": float(max(params[n]["rhat"] for n in sampled)) if sampled else None,
+        "min_ess_bulk": float(min(params[n]["ess_bulk"] for n in sampled)) if sampled else None,
+        "seconds_per_step": float(result.seconds_per_step), "best_loglik": float(loglik[ibest]),
+    }
+    return {"method": "mh", "parameters": params, "diagnostics": diagnostics}
+
+
+def summarize_grad(result, space: ParamSpace) -> dict:
+    """Summarise a :class:`~galileo_jax.inference.grad.GradResult` in the MH dict shape.
+
+    mean = median = best = the estimate; sd from the delta method; interval90 from the
+    Gauss-Newton normal approximation in z mapped through the transform. A derived phi (one
+    mass known) gets its SD by the delta method and interval estimate +- 1.645 sd. R-hat and
+    ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s.
+    """
+    theta = np.asarray(result.theta, np.float64)
+    if theta.shape != (space.dim,):
+        raise ValueError(f"result.theta must have shape ({space.dim},), got {theta.shape}")
+    idx = {n: j for j, n in enumerate(space.names)}
+
+    def est(name):
+        j = idx[name]
+        return _entry(mean=float(theta[j]), median=float(theta[j]), sd=float(result.sd[j]),
+                      interval90=[float(v) for v in result.interval90[j]], best=float(theta[j]))
+
+    params: dict[str, dict] = {}
+    for i in range(space.n_objects):
+        name = f"k{i + 1}"
+        params[name] = est(name) if name in idx else _known(float(space.known_friction[i]))
+    if space.n_objects == 2:
+        if "phi" in idx:
+            params["phi"] = est("phi")
+        else:
+            phi_fn = lambda t: phi_of(space, t)  # noqa: E731
+            value = float(phi_fn(theta))
+            if space.mass_mode == "known":
+                params["phi"] = _known(value)
+            else:
+                g = np.asarray(jax.grad(phi_fn)(jnp.asarray(theta, jnp.float32)), np.float64)
+                sd = float(np.sqrt(max(g @ np.asarray(result.cov_theta) @ g, 0.0)))
+                params["phi"] = _entry(mean=value, median=value, sd=sd, best=value,
+                                       interval90=[max(value - 1.6448536 * sd, -1.0), min(value + 1.6448536 * sd, 1.0)])
+    for i in range(space.n_objects):
+        name = f"m{i + 1}"
+        if space.known_mass[i] is not None:
+            params[name] = _known(float(space.known_mass[i]))
+        elif name in idx:
+            params[name] = est(name)
+        else:
+            note = NOT_IDENTIFIABLE_ONE if space.n_objects == 1 else NOT_IDENTIFIABLE.split(";")[0]
+            params[name] = _entry(identifiable=False, note=note)
+    diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
+                   "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
+                   "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s)}
+    return {"method": "grad", "parameters": params, "diagnostics": diagnostics}

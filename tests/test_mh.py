@@ -1,0 +1,176 @@
+"""Random-walk MH: the kernel on tiny hand-written densities, the adaptive driver on a toy
+problem, the seed's sampler on a toy problem, and one short run on a simulated video."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from galileo_jax.inference.mh import RWState, build_kernel, random_walk, run_mh
+from galileo_jax.inference.seed_mh import run_seed_mh
+from galileo_jax.inference.summary import summarize_mh
+from galileo_jax.observation import Observation
+from galileo_jax.params import ParamSpace
+from galileo_jax.scene import scene_from_dict
+from galileo_jax.simulate import PhysParams
+
+BOX1 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.45}
+BOX2 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.15}
+SCENE2 = scene_from_dict({"name": "ramp_20", "ramp": {"angle_deg": 20, "length": 0.6}, "objects": [BOX1, BOX2],
+                          "camera": {"pixels_per_metre": 1692.9}})
+
+
+# ---------------------------------------------------------------------------- the kernel
+def test_acceptance_rule_is_metropolis():
+    """log u < log p' - log p: with p'/p = 1/4 a quarter of the proposals are accepted."""
+    kernel = build_kernel()
+    n = 200_000
+    state = RWState(jnp.zeros((n, 1)), jnp.full((n,), jnp.log(4.0)))
+    new, info = kernel(jax.random.key(0), state, lambda x: jnp.zeros(x.shape[:-1]), 1.0)
+    assert np.allclose(info.acceptance_rate, 0.25)
+    assert float(info.is_accepted.mean()) == pytest.approx(0.25, abs=0.005)
+    moved = np.asarray(new.position[:, 0] != 0.0)
+    assert np.array_equal(moved, np.asarray(info.is_accepted))
+    assert np.allclose(np.asarray(new.logdensity)[moved], 0.0) and np.allclose(np.asarray(new.logdensity)[~moved], np.log(4.0))
+    # higher density: always accepted; NaN density: never; a -inf start accepts anything finite
+    up = kernel(jax.random.key(1), RWState(jnp.zeros((1000, 1)), jnp.full((1000,), -1.0)), lambda x: jnp.zeros(x.shape[:-1]), 1.0)[1]
+    assert bool(up.is_accepted.all())
+    nan = kernel(jax.random.key(2), RWState(jnp.zeros((1000, 1)), jnp.zeros(1000)), lambda x: jnp.full(x.shape[:-1], jnp.nan), 1.0)[1]
+    assert not bool(nan.is_accepted.any())
+    start = kernel(jax.random.key(3), RWState(jnp.zeros((1000, 1)), jnp.full((1000,), -jnp.inf)), lambda x: -x[..., 0] ** 2, 1.0)[1]
+    assert bool(start.is_accepted.all())
+
+
+def test_random_walk_recovers_2d_gaussian():
+    mean = jnp.array([1.0, -2.0])
+    cov = jnp.array([[1.0, 0.8], [0.8, 2.0]])
+    prec = jnp.linalg.inv(cov)
+
+    def logp(x):
+        d = x - mean
+        return -0.5 * jnp.einsum("...i,ij,...j->...", d, prec, d)
+
+    alg = random_walk(logp, jnp.linalg.cholesky(cov) * 2.38 / np.sqrt(2), dim=2)
+    state = alg.init(jnp.zeros((16, 2)))
+
+    def body(s, k):
+        s, info = alg.step(k, s)
+        return s, (s.position, info.is_accepted)
+
+    _, (xs, acc) = jax.jit(lambda k: jax.lax.scan(body, state, jax.random.split(k, 4000)))(jax.random.key(1))
+    xs = np.asarray(xs[1000:]).reshape(-1, 2)
+    assert np.allclose(xs.mean(0), mean, atol=0.08)
+    assert np.allclose(np.cov(xs.T), cov, atol=0.15)
+    assert 0.25 < float(acc.mean()) < 0.45
+
+
+def test_random_walk_rejects_bad_scale():
+    with pytest.raises(ValueError, match="scale"):
+        random_walk(lambda x: -jnp.sum(x**2, -1), jnp.ones(3), dim=2)
+
+
+# ---------------------------------------------------------------------------- driver on a toy problem
+class ToyProblem:
+    """Gaussian likelihood in theta = (k1, k2, phi); no simulator."""
+
+    def __init__(self, mean, sd):
+        self.space = ParamSpace.from_scene(SCENE2)
+        self.mean, self.sd = jnp.asarray(mean), jnp.asarray(sd)
+
+    def loglik_z(self, z):
+        th = self.space.from_unconstrained(z)
+        return -0.5 * jnp.sum(((th - self.mean) / self.sd) ** 2)
+
+    def map_batch(self, f, xs):
+        return jax.vmap(f)(xs)
+
+
+def test_run_mh_on_toy_posterior():
+    mean, sd = np.array([0.2, 0.25, 0.33]), np.array([0.01, 0.03, 0.05])
+    res = run_mh(ToyProblem(mean, sd), jax.random.key(0), n_warmup=400, n_samples=600, progress=False)
+    assert res.theta.shape == (16, 600, 3) and res.loglik.shape == (16, 600)
+    th = res.theta.reshape(-1, 3)
+    assert np.all(np.abs(th.mean(0) - mean) < 0.3 * sd)
+    assert np.allclose(th.std(0), sd, rtol=0.25)
+    assert 0.15 < res.acceptance.mean() < 0.5
+    summ = summarize_mh(res, ToyProblem(mean, sd).space)
+    assert set(summ["parameters"]) == {"k1", "k2", "phi", "m1", "m2"}
+    for name in ("k1", "k2", "phi"):
+        p = summ["parameters"][name]
+        assert p["identifiable"] and p["rhat"] < 1.05 and p["ess_bulk"] > 200
+        lo, hi = p["interval90"]
+        assert lo < mean[["k1", "k2", "phi"].index(name)] < hi
+    assert not summ["parameters"]["m1"]["identifiable"] and "phi" in summ["parameters"]["m1"]["note"]
+    assert summ["diagnostics"]["max_rhat"] < 1.05
+
+
+def test_run_mh_rejects_bad_arguments():
+    toy = ToyProblem([0.2, 0.25, 0.33], [0.01, 0.03, 0.05])
+    with pytest.raises(ValueError, match="n_chains"):
+        run_mh(toy, jax.random.key(0), n_chains=1)
+    with pytest.raises(ValueError, match="init_theta"):
+        run_mh(toy, jax.random.key(0), init_theta=np.array([0.2, 0.3]))
+    with pytest.raises(ValueError, match="outside"):
+        run_mh(toy, jax.random.key(0), init_theta=np.array([0.2, 1.3, 0.0]))
+
+
+# ---------------------------------------------------------------------------- the seed's sampler
+class ToySeedProblem:
+    """Profile = parameters held constant over time; observation at a known truth."""
+
+    def __init__(self, truth):
+        self.scene = SCENE2
+        m = 20
+        self.truth = truth
+        prof = self._profile(PhysParams(jnp.asarray(truth.mass), jnp.asarray(truth.friction)), m)
+        t = np.arange(m + 1) / 30.0
+        self.observation = Observation(t, np.zeros((m + 1, 2, 2)), np.zeros((m + 1, 2, 2)), np.asarray(prof),
+                                       np.full(4, 1e-3), np.ones(m, bool), 0.0, 30.0, np.ones(2, bool))
+        self.likelihood = type("L", (), {"sd_model": 0.05})()
+        self.m = m
+
+    @staticmethod
+    def _profile(p, m):
+        phi = (p.mass[0] - p.mass[1]) / (p.mass[0] + p.mass[1])
+        return jnp.stack([p.friction[0], phi, p.friction[1], 0.0 * phi])[:, None] * jnp.ones(m)
+
+    def profile_physical(self, p):
+        return self._profile(p, self.m)
+
+    def map_batch(self, f, xs):
+        return jax.vmap(f)(xs)
+
+
+def test_seed_sampler_rules():
+    prob = ToySeedProblem(PhysParams(np.array([0.6, 0.3]), np.array([0.2, 0.25])))
+    res = run_seed_mh(prob, jax.random.key(0), progress=False)
+    assert res.names == ("m1", "k1", "m2", "k2")
+    assert res.proposals.shape == (16, 75, 4) and res.chain.shape == (16, 76, 4)
+    assert np.all((res.proposals > 0) & (res.proposals < 1))
+    step = np.abs(res.proposals - res.chain[:, :-1])
+    wide = (np.arange(1, 76) % 20 == 0)
+    assert np.all(step[:, ~wide] <= 0.05 + 1e-6) and np.all(step[:, wide] <= 0.5 + 1e-6)
+    assert step[:, wide].max() > 0.05
+    # accepted whenever not worse; worse proposals accepted about half the time (coin toss)
+    better = res.proposal_similarity >= res.chain_similarity[:, :-1]
+    assert np.all(res.accepted[better])
+    assert 0.35 < res.accepted[~better].mean() < 0.65
+    assert np.allclose(np.where(res.accepted, res.proposal_similarity, res.chain_similarity[:, :-1]), res.chain_similarity[:, 1:])
+    assert res.best_similarity == pytest.approx(max(res.proposal_similarity.max(), res.chain_similarity[:, 0].max()))
+    assert abs(res.best["k1"] - 0.2) < 0.05 and abs(res.best["phi"] - 1 / 3) < 0.2
+
+
+# ---------------------------------------------------------------------------- a simulated video
+def test_mh_interval_covers_truth_on_simulated_video():
+    from galileo_jax.inference.problem import Problem, simulated_observation
+
+    truth = PhysParams(jnp.array([0.6, 0.3]), jnp.array([0.2, 0.25]))
+    obs = simulated_observation(SCENE2, truth, duration=1.5, position_sd=1e-3, seed=0)
+    prob = Problem(SCENE2, obs)
+    res = run_mh(prob, jax.random.key(0), n_warmup=160, n_samples=80, progress=False)
+    summ = summarize_mh(res, prob.space)
+    p = summ["parameters"]
+    assert p["k1"]["interval90"][0] < 0.2 < p["k1"]["interval90"][1]
+    assert p["phi"]["interval90"][0] < 1 / 3 < p["phi"]["interval90"][1]
+    assert abs(p["k1"]["median"] - 0.2) < 0.01 and abs(p["phi"]["median"] - 1 / 3) < 0.1
+    assert np.isfinite(summ["diagnostics"]["max_rhat"])
