@@ -43,6 +43,7 @@ class GradConfig(_Strict):
     """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind."""
 
     starts: int = Field(4, ge=1, le=256)
+    screen: int = Field(256, ge=1, le=4096)
     max_steps: int = Field(40, ge=1)
     jacobian: Literal["fd", "ad"] = "fd"
 

@@ -86,7 +86,8 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     if method == "grad":
         from galileo_jax.inference.grad import fit_grad
 
-        res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, jacobian=cfg.grad.jacobian,
+        res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
+                       jacobian=cfg.grad.jacobian,
                        max_steps=cfg.grad.max_steps)
         params, diag = _with_estimate(summary.summarize_grad(res, problem.space), "mean")
         draws = _grad_draws(res, problem.space, k_sum, cfg.prediction.draws)

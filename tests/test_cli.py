@@ -92,16 +92,20 @@ def _write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Non
     writer.release()
 
 
-def test_object_never_moves(tmp_path):
-    """A video of the scene in which nothing moves: the first frame of the example, repeated
-    (after the hand) -> 'never moves', naming what the video does say (k1 >= tan theta)."""
+def _example_frames() -> list[np.ndarray]:
     cap = cv2.VideoCapture(str(EXAMPLE))
     frames = []
     while True:
         ok, f = cap.read()
         if not ok:
-            break
+            return frames
         frames.append(f)
+
+
+def test_object_never_moves(tmp_path):
+    """A video of the scene in which nothing moves: the first frame of the example, repeated
+    (after the hand) -> 'never moves', naming what the video does say (k1 >= tan theta)."""
+    frames = _example_frames()
     still = [frames[14]] * 60  # object 1 at rest, just before the release
     video = tmp_path / "still.mp4"
     _write_video(video, still)
@@ -112,13 +116,7 @@ def test_object_never_moves(tmp_path):
 
 def test_track_lost(tmp_path):
     """Object 1 vanishes mid-slide (painted over with the background): the track is lost."""
-    cap = cv2.VideoCapture(str(EXAMPLE))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(f)
+    frames = _example_frames()
     background = frames[-1].copy()
     # from frame 28 on, replace the left part of the image (where object 1 slides) by a
     # frame without object 1 there: the last frame's ramp region is empty.

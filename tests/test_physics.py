@@ -70,6 +70,12 @@ def _along_slope(pose):
 
 def test_ramp_acceleration_matches_closed_form(one_object):
     sim, fn = one_object
+    # The ramp and floor geoms keep MuJoCo's default friction 1.0; with MuJoCo's default
+    # max-combination nothing would slide at 20 degrees (1.0 > tan 20 = 0.36). The contact
+    # pairs carry the object's own k, so the closed form below holds only if k is effective.
+    m = sim.mj_model
+    for name in ("ramp", "floor"):
+        assert m.geom_friction[m.geom(name).id, 0] == 1.0
     ks = np.array([0.1, 0.2, 0.3, 0.45])
     poses = np.asarray(fn(PhysParams(jnp.full((4, 1), 0.5), jnp.asarray(ks)[:, None])))
     t = np.arange(poses.shape[1]) * sim.dt

@@ -118,7 +118,7 @@ def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
     return np.linalg.pinv(jtj, hermitian=True)
 
 
-def fit_grad(problem: Problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 64,
+def fit_grad(problem: Problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
              init: np.ndarray | None = None,
              jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
              max_steps: int = 40) -> GradResult:
