@@ -41,6 +41,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from galileo_jax.errors import SceneError
 
 PositiveFloat = Annotated[float, Field(gt=0)]
+#: Object-object collisions MJX 3.17 does not implement (measured, issue 2).
+UNSUPPORTED_PAIRS = (frozenset({"cylinder", "box"}), frozenset({"cylinder", "sphere"}))
 Pixel = tuple[float, float]
 
 
@@ -219,6 +221,12 @@ class Scene(_Strict):
             raise ValueError("at least object 1 must start on the ramp")
         if self.camera.start_pixels is not None and len(self.camera.start_pixels) != len(self.objects):
             raise ValueError(f"camera.start_pixels has {len(self.camera.start_pixels)} points for {len(self.objects)} objects")
+        if len(self.objects) == 2:
+            shapes = frozenset(o.shape for o in self.objects)
+            if shapes in UNSUPPORTED_PAIRS:
+                a, b = sorted(shapes)
+                raise ValueError(f"MuJoCo-MJX cannot collide a {a} with a {b}; model both objects as boxes "
+                                 f"(or both as cylinders) with the same sizes")
         if len(self.objects) == 2 and placed == ["ramp", "ramp"]:
             a, b = self.objects
             if abs(a.start - b.start) < (a.length + b.length) / 2:
