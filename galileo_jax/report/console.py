@@ -31,7 +31,7 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
         iv = f"[{_fmt(interval[0])}, {_fmt(interval[1])}]" if interval else "-"
         note = NOTES.get(name, "")
         if not p.get("identifiable", True):
-            note = "NOT identifiable (prior, conditioned on phi)"
+            note = "NOT identifiable from the video (only phi is)"
         if p.get("known"):
             note = "known (scene file)"
         rhat = _fmt(p.get("rhat")) if p.get("rhat") is not None else ""
