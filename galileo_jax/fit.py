@@ -12,7 +12,6 @@ one line on stderr and a non-zero exit status (see :mod:`galileo_jax.errors`).
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time

@@ -26,7 +26,7 @@ from galileo_jax.predict import RestPrediction, predict_rest, slides
 from galileo_jax.report.figures import profile_figure, trace_names
 from galileo_jax.report.results import package_versions, write_json
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import PhysParams, rollout, sample_poses, steps_needed
+from galileo_jax.simulate import rollout, sample_poses
 
 
 @dataclass
@@ -162,8 +162,7 @@ def _prediction(problem: Problem, scene: Scene, obs: Observation, theta_best: np
 def simulated_poses(problem: Problem, theta: np.ndarray) -> np.ndarray:
     """(N, n_objects, 3) simulated poses (x m, z m, pitch rad) at the video's frame times."""
     obs = problem.observation
-    sim = problem.sim
-    n = steps_needed(sim, max(float(obs.frame_times[-1] - obs.release_time), sim.dt))
+    sim, n = problem.sim, problem.n_steps_full
     phys = problem.space.physical(jnp.asarray(theta))
     traj = jax.jit(lambda p: rollout(sim, p, n))(phys)
     return np.asarray(sample_poses(traj, jnp.asarray(obs.frame_times - obs.release_time)))
