@@ -149,3 +149,6 @@ def test_existing_result_is_not_half_overwritten(tmp_path):
         write_json(path, {"a": Boom()})
     assert path.read_text().strip().replace(" ", "").replace("\n", "") == '{"a":1}'
     assert [p.name for p in tmp_path.iterdir()] == ["result.json"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's private 0600
