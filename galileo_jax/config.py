@@ -63,8 +63,10 @@ class PredictionConfig(_Strict):
 
 
 class FitConfig(_Strict):
-    """All settings of one ``fit`` run."""
+    """All settings of one ``fit`` run. ``effects``: physical effects (names from
+    :mod:`galileo_jax.effects`) added to the base model, on top of the scene's own."""
 
+    effects: list[str] = Field(default_factory=list)
     mh: MHConfig = MHConfig()
     seed_mh: SeedMHConfig = SeedMHConfig()
     grad: GradConfig = GradConfig()

@@ -46,7 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup", type=int, help="mh: warm-up steps")
     p.add_argument("--samples", type=int, help="mh: kept steps per chain")
     p.add_argument("--starts", type=int, help="grad: number of Levenberg-Marquardt starts")
-    p.add_argument("--likelihood", help="likelihood kind: gaussian_ma1 (default), gaussian_iid, seed_gaussian, emd, rms")
+    p.add_argument("--effects", help="physical effects to add to the base model, comma-separated "
+                                     "(e.g. quadratic_drag,restitution; see python -m galileo_jax.diagnose --list)")
+    p.add_argument("--likelihood", help="likelihood kind: gaussian_iid (default), gaussian_ma1, seed_gaussian, emd, rms")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -67,6 +69,10 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         cfg.grad.starts = args.starts
     if args.likelihood is not None:
         cfg.likelihood.kind = args.likelihood
+    if args.effects is not None:
+        from galileo_jax.effects import resolve_effects
+
+        cfg.effects = [e.name for e in resolve_effects(args.effects)]  # unknown name: one-line error
     for name, value in (("--chains", args.chains), ("--starts", args.starts), ("--samples", args.samples)):
         if value is not None and value < 1:
             raise GalileoError(f"{name} must be a positive integer, got {value}")

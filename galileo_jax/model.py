@@ -43,6 +43,8 @@ class ModelIndex:
         dof: (n_obj,) address of each object's first free-joint dof in ``qvel``.
         pairs: per object, the contact-pair ids that carry its friction (ramp, floor).
         object_pair: id of the object-object pair, or -1.
+        ramp_pair: per object, id of its pair with the ramp, or -1 (it starts on the floor).
+        floor_pair: per object, id of its pair with the floor.
     """
 
     body: tuple[int, ...]
@@ -50,6 +52,8 @@ class ModelIndex:
     dof: tuple[int, ...]
     pairs: tuple[tuple[int, ...], ...]
     object_pair: int
+    ramp_pair: tuple[int, ...] = ()
+    floor_pair: tuple[int, ...] = ()
 
 
 def _rot_y(angle: float) -> list[float]:
@@ -87,8 +91,11 @@ def _add_object_geom(body: mujoco.MjsBody, obj: SceneObject, name: str, rgba) ->
                   material=f"{name}_mat")
 
 
-def build_spec(scene: Scene) -> mujoco.MjSpec:
+def build_spec(scene: Scene, effects=()) -> mujoco.MjSpec:
     """Build the MuJoCo specification of a scene (ramp, floor, objects, contact pairs).
+
+    ``effects``: :class:`~galileo_jax.effects.Effect` objects whose ``build`` hook changes
+    the structure (e.g. ``rolling``), applied last.
 
     Returns:
         An uncompiled :class:`mujoco.MjSpec`; :func:`build_model` compiles it. Rendering code
@@ -143,21 +150,25 @@ def build_spec(scene: Scene) -> mujoco.MjSpec:
     if scene.n_objects == 2:
         spec.add_pair(name="object1_object2", geomname1="object1", geomname2="object2", condim=1,
                       friction=[0.0, 0.0, 0.005, 0.0001, 0.0001])
+    for effect in effects:
+        if effect.build is not None:
+            effect.build(spec, scene)
     return spec
 
 
-def build_model(scene: Scene, timestep: float | None = None) -> tuple[mujoco.MjModel, ModelIndex]:
+def build_model(scene: Scene, timestep: float | None = None, effects=()) -> tuple[mujoco.MjModel, ModelIndex]:
     """Compile the scene's MuJoCo model.
 
     Args:
         scene: the validated scene.
         timestep: physics timestep in s (default 1/240 s).
+        effects: effects whose ``build`` hooks change the model's structure.
 
     Returns:
         ``(model, index)``: the compiled :class:`mujoco.MjModel` and the :class:`ModelIndex`
         of the ids the simulator needs.
     """
-    spec = build_spec(scene)
+    spec = build_spec(scene, effects)
     if timestep is not None:
         spec.option.timestep = timestep
     model = spec.compile()
@@ -166,7 +177,7 @@ def build_model(scene: Scene, timestep: float | None = None) -> tuple[mujoco.MjM
 
 def model_index(model: mujoco.MjModel, n_objects: int) -> ModelIndex:
     """Look up body, joint and pair ids of the objects in a compiled scene model."""
-    bodies, qpos, dofs, pairs = [], [], [], []
+    bodies, qpos, dofs, pairs, ramp, floor = [], [], [], [], [], []
     for i in range(1, n_objects + 1):
         b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"object{i}")
         j = model.body_jntadr[b]
@@ -174,10 +185,11 @@ def model_index(model: mujoco.MjModel, n_objects: int) -> ModelIndex:
         qpos.append(int(model.jnt_qposadr[j]))
         dofs.append(int(model.jnt_dofadr[j]))
         ids = []
-        for surf in ("ramp", "floor"):
+        for surf, out in (("ramp", ramp), ("floor", floor)):
             pid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PAIR, f"object{i}_{surf}")
+            out.append(int(pid))
             if pid >= 0:
                 ids.append(int(pid))
         pairs.append(tuple(ids))
     op = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PAIR, "object1_object2")
-    return ModelIndex(tuple(bodies), tuple(qpos), tuple(dofs), tuple(pairs), int(op))
+    return ModelIndex(tuple(bodies), tuple(qpos), tuple(dofs), tuple(pairs), int(op), tuple(ramp), tuple(floor))

@@ -71,6 +71,8 @@ class ParamSpace:
         mass_prior: (a, b) uniform prior range of a free mass in kg.
         mass_mode: "phi" (both masses free), "free" (one mass free, one known),
             "known" (both known) or "none" (one object: mass irrelevant).
+        effects: the :class:`~galileo_jax.effects.Effect` objects whose parameters follow the
+            physical ones (kind "effect", uniform prior on each parameter's bounds).
     """
 
     names: tuple[str, ...]
@@ -83,10 +85,12 @@ class ParamSpace:
     known_friction: tuple[float | None, ...]
     mass_prior: tuple[float, float]
     mass_mode: str
+    effects: tuple = ()
 
     @classmethod
-    def from_scene(cls, scene: Scene) -> "ParamSpace":
-        """The parameter space of ``scene`` (free parameters from ``scene.free_parameters()``).
+    def from_scene(cls, scene: Scene, effects=()) -> "ParamSpace":
+        """The parameter space of ``scene`` (free parameters from ``scene.free_parameters()``),
+        followed by the parameters of ``effects`` (in order).
 
         Raises:
             ValueError: the scene has no free parameter at all.
@@ -115,13 +119,28 @@ class ParamSpace:
             kinds.append("mass"); objects.append(i)
         else:
             mode = "known"
+        for e in effects:
+            for p in e.params:
+                names.append(p.name); lower.append(p.lower); upper.append(p.upper)
+                kinds.append("effect"); objects.append(-1)
         if not names:
             raise ValueError(f"scene {scene.name!r} has no free parameter that affects the motion "
                              f"(free: {free or 'none'}); leave a friction (or, with two objects, a mass) unset")
         return cls(tuple(names), tuple(float(x) for x in lower), tuple(float(x) for x in upper),
                    tuple(kinds), tuple(objects), n,
                    tuple(o.mass for o in scene.objects), tuple(o.friction for o in scene.objects),
-                   (float(ma), float(mb)), mode)
+                   (float(ma), float(mb)), mode, tuple(effects))
+
+    @property
+    def effect_slice(self) -> slice:
+        """Positions of the effect parameters in ``theta`` (they come last)."""
+        n_eff = sum(1 for k in self.kinds if k == "effect")
+        return slice(self.dim - n_eff, self.dim)
+
+    @property
+    def n_physical(self) -> int:
+        """Number of base-model coordinates (frictions and mass), before the effect parameters."""
+        return self.effect_slice.start
 
     # ------------------------------------------------------------------ basic properties
     @property
@@ -238,11 +257,12 @@ class ParamSpace:
                 fric[i] = theta[..., j]
             elif kind == "mass":
                 mass[i] = theta[..., j]
-            else:
+            elif kind == "phi":
                 phi = theta[..., j]
                 mass[0] = REFERENCE_TOTAL_MASS * (1.0 + phi) / 2.0
                 mass[1] = REFERENCE_TOTAL_MASS * (1.0 - phi) / 2.0
-        return PhysParams(jnp.stack(mass, -1), jnp.stack(fric, -1))
+        effects = theta[..., self.effect_slice] if self.effects else None
+        return PhysParams(jnp.stack(mass, -1), jnp.stack(fric, -1), effects)
 
     def masses_for_report(self, theta: jax.Array, key: jax.Array) -> jax.Array:
         """Masses (kg) for reporting, one draw per sample; (..., d) -> (..., n_objects).

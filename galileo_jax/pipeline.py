@@ -196,7 +196,8 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
 
     t = time.perf_counter()
     try:
-        problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model)
+        problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
+                          effects=cfg.effects)
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)

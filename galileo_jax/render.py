@@ -23,6 +23,7 @@ from typing import NamedTuple  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from galileo_jax.effects import resolve_effects  # noqa: E402
 from galileo_jax.model import OBJECT_COLOURS, build_spec, object_start_pose  # noqa: E402
 from galileo_jax.scene import Camera, Scene  # noqa: E402
 
@@ -231,7 +232,8 @@ def hand_position(scene: Scene, view: View, t: float, release_time: float,
     return p0 + ease * np.array([-0.35 * rise, 0.0, rise])
 
 
-def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = False) -> mujoco.MjModel:
+def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = False,
+                       effects=()) -> mujoco.MjModel:
     """Compile the scene's model with scenery, textures, the front camera and optionally a hand.
 
     Args:
@@ -239,11 +241,14 @@ def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = F
         view: the camera framing.
         timestep: physics timestep in s (kept for consistency; rendering does not step).
         hand: add the hand mocap body.
+        effects: the simulated effects (:class:`~galileo_jax.effects.Effect` objects or names:
+            the scene's own and any hidden ones); their ``build`` hooks change what is drawn (``rolling``
+            draws a round object as its cylinder). They keep the qpos layout.
 
     Returns:
         The compiled :class:`mujoco.MjModel` (offscreen buffer sized to the view).
     """
-    spec = build_spec(scene)
+    spec = build_spec(scene, resolve_effects(list(effects)))
     spec.option.timestep = timestep
     spec.visual.global_.offwidth = max(view.width, 64)
     spec.visual.global_.offheight = max(view.height, 64)

@@ -69,6 +69,15 @@ class Floor(_Strict):
     length: PositiveFloat = 1.5
 
 
+class Rolling(_Strict):
+    """A round cross-section for the ``rolling`` effect: a cylinder of ``radius`` (m) lying
+    across the slope whose moment of inertia about its axis is ``inertia_ratio`` m r^2
+    (0.5 solid cylinder, 1 thin ring, (1 + (r_in / r)^2) / 2 a pipe, 0.4 a solid sphere)."""
+
+    radius: PositiveFloat
+    inertia_ratio: float = Field(default=0.5, gt=0, le=1)
+
+
 class SceneObject(_Strict):
     """One free object.
 
@@ -78,7 +87,9 @@ class SceneObject(_Strict):
     known when given and free parameters when ``null``/absent. ``tracker`` chooses how the
     object is followed in the video: ``features`` (KLT on its texture), ``outline`` (a round
     outline, for rolling spheres or a pipe seen end-on, whose features turn with it) or
-    ``auto`` (outline for spheres, features otherwise).
+    ``auto`` (outline for spheres, features otherwise). ``rolling`` gives a box-modelled
+    round object (a pipe, a can) its true cross-section, used only when the ``rolling``
+    effect is on; its radius must be half the box's height.
     """
 
     name: str | None = None
@@ -90,6 +101,7 @@ class SceneObject(_Strict):
     friction: float | None = Field(default=None, ge=0)
     rgba: tuple[float, float, float, float] | None = None
     tracker: Literal["auto", "features", "outline"] = "auto"
+    rolling: Rolling | None = None
 
     @model_validator(mode="after")
     def _check_size(self) -> "SceneObject":
@@ -97,6 +109,12 @@ class SceneObject(_Strict):
         if len(self.size) != expected:
             names = {"box": "[length, width, height]", "cylinder": "[radius, height]", "sphere": "[radius]"}
             raise ValueError(f"a {self.shape} needs size {names[self.shape]} ({expected} numbers in metres), got {self.size}")
+        if self.rolling is not None:
+            if self.shape != "box":
+                raise ValueError("rolling: {radius, ...} is for a round object modelled as a box (shape: box)")
+            if not math.isclose(self.rolling.radius, self.size[2] / 2, rel_tol=0.01):
+                raise ValueError(f"rolling.radius = {self.rolling.radius} m must be half the box height "
+                                 f"({self.size[2] / 2:.4g} m) so that the rolling and sliding models start at the same pose")
         return self
 
     @property
@@ -193,7 +211,11 @@ class Simulation(_Strict):
 
 
 class Scene(_Strict):
-    """A validated scene. Build with :func:`load_scene` or ``Scene.model_validate(dict)``."""
+    """A validated scene. Build with :func:`load_scene` or ``Scene.model_validate(dict)``.
+
+    ``effects`` names physical effects (:mod:`galileo_jax.effects`) that belong to this setup
+    and are always simulated with it (e.g. ``[rolling]``); ``fit --effects`` adds more.
+    """
 
     name: str = "scene"
     ramp: Ramp
@@ -204,6 +226,7 @@ class Scene(_Strict):
     priors: Priors = Priors()
     simulation: Simulation = Simulation()
     gravity: PositiveFloat = 9.81
+    effects: list[str] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _check_layout(self) -> "Scene":

@@ -35,6 +35,9 @@ import numpy as np
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
+from galileo_jax.effects import BodyState, EffectContext, check_applicable, resolve_effects
+from galileo_jax.effects.runtime import (effect_param_names, forces, frictions, has_step_hooks, initial_velocity,
+                                         make_context, model_updates, neutral_values, split_values)
 from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model
 from galileo_jax.scene import Scene
 
@@ -45,10 +48,13 @@ class PhysParams(NamedTuple):
     Attributes:
         mass: (..., n_objects) masses in kg.
         friction: (..., n_objects) sliding friction coefficients (dimensionless).
+        effects: (..., n_effect_params) parameters of the simulator's effects, in the order of
+            ``Simulator.effect_names`` (None: the neutral values, i.e. the base model).
     """
 
     mass: jax.Array
     friction: jax.Array
+    effects: jax.Array | None = None
 
 
 class Trajectory(NamedTuple):
@@ -78,6 +84,13 @@ class Simulator:
     index: ModelIndex
     dt: float
     base: dict = field(repr=False)
+    effects: tuple = ()
+    ctx: EffectContext | None = None
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the effect parameters (layout of ``PhysParams.effects``)."""
+        return effect_param_names(self.effects)
 
     @property
     def n_objects(self) -> int:
@@ -98,18 +111,25 @@ def physics_timestep(fps: float, substeps: int) -> float:
     return 1.0 / (fps * substeps)
 
 
-def make_simulator(scene: Scene, fps: float) -> Simulator:
-    """Build the MuJoCo model of ``scene`` and move it to MJX.
+def make_simulator(scene: Scene, fps: float, effects=()) -> Simulator:
+    """Build the MuJoCo model of ``scene`` (with ``effects``) and move it to MJX.
 
     Args:
         scene: validated scene.
         fps: video frame rate in frames per second (sets the physics timestep).
+        effects: :class:`~galileo_jax.effects.Effect` objects to simulate (the scene's own
+            ``effects`` are NOT added here; see :func:`scene_effects`).
 
     Returns:
         A :class:`Simulator`.
+
+    Raises:
+        GalileoError: an effect does not apply to the scene.
     """
+    effects = tuple(effects)
+    check_applicable(effects, scene)
     dt = physics_timestep(fps, scene.simulation.substeps)
-    mj_model, index = build_model(scene, timestep=dt)
+    mj_model, index = build_model(scene, timestep=dt, effects=effects)
     model = mjx.put_model(mj_model)
     data0 = mjx.make_data(model)
     # Run forward once: gives consistent dtypes for the contact fields under scan (float64)
@@ -122,7 +142,16 @@ def make_simulator(scene: Scene, fps: float) -> Simulator:
         "body_invweight0": np.asarray(mj_model.body_invweight0[bodies]),
         "dof_invweight0": np.stack([mj_model.dof_invweight0[d:d + 6] for d in index.dof]),
     }
-    return Simulator(scene, mj_model, model, data0, index, dt, base)
+    return Simulator(scene, mj_model, model, data0, index, dt, base, effects, make_context(scene, index, dt))
+
+
+def scene_effects(scene: Scene, extra=()) -> tuple:
+    """The scene's own effects (``scene.effects``) followed by ``extra`` (names or Effects), de-duplicated.
+
+    Raises:
+        GalileoError: an unknown effect name.
+    """
+    return resolve_effects(list(scene.effects) + list(resolve_effects(extra)))
 
 
 def apply_params(sim: Simulator, params: PhysParams) -> mjx.Model:
@@ -165,7 +194,9 @@ def _pose(sim: Simulator, qpos: jax.Array) -> jax.Array:
 def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
     """Simulate ``n_steps`` physics steps from rest at the scene's start positions.
 
-    Pure and jittable for fixed ``n_steps``; ``vmap`` over ``params`` for a batch.
+    Pure and jittable for fixed ``n_steps``; ``vmap`` over ``params`` for a batch. The
+    simulator's effects act as their hooks say (:mod:`galileo_jax.effects`): model fields
+    once, release velocities at t = 0, frictions and forces (``xfrc_applied``) every step.
 
     Args:
         sim: the simulator.
@@ -176,13 +207,57 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
         :class:`Trajectory` with ``pose`` of shape (n_steps + 1, n_objects, 3).
     """
     model = apply_params(sim, params)
+    data0 = sim.data0
+    if sim.effects:
+        return _rollout_effects(sim, model, params, n_steps)
 
     def step(d, _):
         d = mjx.step(model, d)
         return d, _pose(sim, d.qpos)
 
-    _, poses = jax.lax.scan(step, sim.data0, None, length=n_steps)
+    _, poses = jax.lax.scan(step, data0, None, length=n_steps)
     pose0 = _pose(sim, sim.data0.qpos)[None]
+    return Trajectory(jnp.concatenate([pose0, poses]), sim.dt)
+
+
+def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_steps: int) -> Trajectory:
+    """:func:`rollout` with the simulator's effects (kept apart so the base model's program is unchanged)."""
+    effects, ctx, index = sim.effects, sim.ctx, sim.index
+    values = params.effects if params.effects is not None else jnp.asarray(neutral_values(effects), jnp.float32)
+    vals = split_values(effects, values)
+    updates = model_updates(effects, vals, model, ctx)
+    if updates:
+        model = model.replace(**updates)
+    data0 = sim.data0
+    v0 = initial_velocity(effects, vals, ctx)
+    qvel = data0.qvel
+    for i, d in enumerate(index.dof):
+        qvel = qvel.at[d:d + 3].add(v0[i].astype(qvel.dtype))
+    data0 = data0.replace(qvel=qvel)
+    bodies = np.asarray(index.body)
+    step_hooks = has_step_hooks(effects)
+
+    def step(d, _):
+        m = model
+        if step_hooks:
+            state = BodyState(jnp.stack([d.qpos[a:a + 3] for a in index.qpos]),
+                              jnp.stack([d.qvel[q:q + 3] for q in index.dof]), params.mass)
+            k = frictions(effects, vals, params.friction, state, ctx)
+            if k is not None:
+                pf = m.pair_friction
+                for i in range(ctx.n_objects):
+                    for col, pid in enumerate((index.ramp_pair[i], index.floor_pair[i])):
+                        if pid >= 0:
+                            pf = pf.at[pid, 0:2].set(k[i, col].astype(pf.dtype))
+                m = m.replace(pair_friction=pf)
+            f = forces(effects, vals, state, ctx)
+            if f is not None:
+                d = d.replace(xfrc_applied=d.xfrc_applied.at[bodies, 0:3].set(f.astype(d.xfrc_applied.dtype)))
+        d = mjx.step(m, d)
+        return d, _pose(sim, d.qpos)
+
+    _, poses = jax.lax.scan(step, data0, None, length=n_steps)
+    pose0 = _pose(sim, data0.qpos)[None]
     return Trajectory(jnp.concatenate([pose0, poses]), sim.dt)
 
 

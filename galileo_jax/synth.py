@@ -1,8 +1,9 @@
 """Synthetic ramp videos with exact ground truth, rendered with MuJoCo.
 
 :func:`render_video` simulates a scene in C MuJoCo for given masses and friction coefficients
-and renders it through an orthographic front camera (:mod:`galileo_jax.render`), so the
-pixel scale is exact; it writes three files next to each other (each atomically):
+(and optionally hidden physical effects, see below) and renders it through an orthographic
+front camera (:mod:`galileo_jax.render`), so the pixel scale is exact; it writes three files
+next to each other (each atomically):
 
 * ``<stem>.mp4``: the video (mp4v), ``width`` x ``height``, ``fps`` frames per second, with
   Gaussian pixel noise of SD ``noise_sd`` grey levels (before compression).
@@ -32,10 +33,29 @@ CLI::
 
     python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.15 --m2 0.3 \\
         --k2 0.25 --out out/ [--fps 30] [--duration S] [--noise 2] [--hand] [--seed 0] \\
-        [--random N]
+        [--random N] [--effect NAME[=VALUE] ...]
 
 ``--out`` is a ``.mp4`` path or a folder (``<scene name>.mp4``, or ``<scene name>_NNN.mp4``
-with ``--random N``). The shipped example was made with::
+with ``--random N``).
+
+Hidden effects: ``--effect NAME=VALUE`` (repeatable) simulates a physical effect of
+:mod:`galileo_jax.effects` that the base model lacks, e.g. ``--effect quadratic_drag=0.9``
+(``NAME=V1,V2`` for an effect with several parameters; ``NAME`` alone for one without, such as
+``rolling``, or with ``--random`` to draw the value uniformly from the parameter's
+``synth_range``; ``--effect none``: no effect). The effect acts in the C MuJoCo simulation
+through the same hooks as in the MJX fit (:func:`simulate_motion`), its values go into the
+truth JSON (``effects``, ``hidden_effects`` and each parameter by name at top level), and the
+written scene YAML does not mention it (the scene's own ``effects`` are kept)::
+
+    python -m galileo_jax.synth --scene scenes/ramp_20.yaml --random 5 --effect quadratic_drag --out out/
+
+With ``--random`` and effects, each draw must give an informative video
+(:func:`draw_informative_params`): object 1's friction on the ramp after the effects (k1 +
+dk_ramp for ``ramp_friction``) below tan(theta) - 0.05, and in the simulated motion object 1
+reaches object 2 and moves it (one object: reaches the floor) within the video; otherwise
+everything is drawn again, at most 20 times. Without effects the draws are unchanged.
+
+The shipped example was made with::
 
     python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.2 --m2 0.3 \
         --k2 0.25 --hand --noise 2 --rest 0.5 --duration 3.0 --seed 0 \
@@ -72,10 +92,13 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from galileo_jax import render  # noqa: E402
+from galileo_jax.effects import BodyState, Effect, available_effects, check_applicable, get_effect  # noqa: E402
+from galileo_jax.effects.runtime import (apply_c_model, c_step, effect_param_names, frictions,  # noqa: E402
+                                         has_step_hooks, make_context, neutral_values, split_values)
 from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
-from galileo_jax.model import ModelIndex, build_model  # noqa: E402
+from galileo_jax.model import ModelIndex, build_model, object_start_pose  # noqa: E402
 from galileo_jax.scene import Scene, Video, load_scene, save_scene  # noqa: E402
-from galileo_jax.simulate import PhysParams, physics_timestep  # noqa: E402
+from galileo_jax.simulate import PhysParams, physics_timestep, scene_effects  # noqa: E402
 
 #: Default seconds at rest (held) before release.
 REST_SECONDS = 0.3
@@ -91,6 +114,11 @@ SLIDE_MARGIN = 0.05
 RANDOM_FRICTION = (0.02, 0.6)
 #: Range of random mass draws in kg (intersected with the scene's prior).
 RANDOM_MASS = (0.05, 1.0)
+#: Random draws with effects: how far (m) object 2 (or a lone object starting on the floor)
+#: must move for the video to count as informative.
+REACH_DISTANCE = 0.005
+#: Random draws with effects: draws tried before giving up.
+MAX_REDRAWS = 20
 
 
 class Motion(NamedTuple):
@@ -126,33 +154,56 @@ class Motion(NamedTuple):
 # --------------------------------------------------------------------------- parameters
 
 
-def resolve_params(scene: Scene, params) -> PhysParams:
-    """Masses and frictions of every object, from a dict or :class:`PhysParams`.
+def resolve_params(scene: Scene, params, effects=()) -> PhysParams:
+    """Masses, frictions and effect parameters, from a dict or :class:`PhysParams`.
 
     Args:
         scene: the scene; its known masses/frictions fill values the dict leaves out.
-        params: ``{"m1", "k1", "m2", "k2"}`` (any subset that, with the scene's known values,
-            gives every object a mass in kg and a friction coefficient) or a
-            :class:`PhysParams` with (n_objects,) arrays.
+        params: ``{"m1", "k1", "m2", "k2", <effect parameters>}`` (any subset of the masses
+            and frictions that, with the scene's known values, gives every object a mass in kg
+            and a friction coefficient; every parameter of the simulated effects, by its name,
+            e.g. ``"drag_quadratic"``) or a :class:`PhysParams` with (n_objects,) arrays and,
+            when the effects have parameters, ``effects`` in the order of their names.
+        effects: extra effects (names or :class:`~galileo_jax.effects.Effect`) simulated on
+            top of the scene's own ``scene.effects`` (see :func:`simulate.scene_effects`).
 
     Returns:
-        :class:`PhysParams` of numpy float arrays, shapes (n_objects,).
+        :class:`PhysParams` of numpy float arrays, shapes (n_objects,); ``effects`` is the
+        (n_effect_params,) vector of the effects' values (ordered as
+        :func:`~galileo_jax.effects.runtime.effect_param_names`), or None when no effect is
+        simulated.
 
     Raises:
         GalileoError: a value is missing, unknown, non-finite, out of range, or contradicts
-            a value the scene fixes.
+            a value the scene fixes; an unknown effect.
     """
     n = scene.n_objects
+    effs = scene_effects(scene, effects)
+    names = effect_param_names(effs)
+    values = None
     if isinstance(params, PhysParams):
         mass = np.asarray(params.mass, dtype=float).reshape(-1)
         friction = np.asarray(params.friction, dtype=float).reshape(-1)
         if mass.shape != (n,) or friction.shape != (n,):
             raise GalileoError(f"PhysParams must have {n} masses and {n} frictions for this scene")
+        if params.effects is not None:
+            values = np.asarray(params.effects, dtype=float).reshape(-1)
+            if values.shape != (len(names),):
+                raise GalileoError(f"PhysParams.effects has {values.size} values but the effects take "
+                                   f"{len(names)} ({', '.join(names) or 'none'})")
+        elif names:
+            raise GalileoError(f"PhysParams.effects is None but the effects need values for {', '.join(names)}")
     elif isinstance(params, Mapping):
-        allowed = {f"{p}{i + 1}" for i in range(n) for p in "mk"}
+        base = {f"{p}{i + 1}" for i in range(n) for p in "mk"}
+        allowed = base | set(names)
         unknown = sorted(set(params) - allowed)
         if unknown:
-            raise GalileoError(f"unknown parameter {unknown[0]!r}; this scene takes {', '.join(sorted(allowed))}")
+            owner = _effect_of_param(unknown[0])
+            if owner is not None and unknown[0] not in base:
+                raise GalileoError(f"{unknown[0]} is a parameter of effect {owner.name!r}, which is not simulated; "
+                                   f"add the effect (effects=[{owner.name!r}], CLI --effect {owner.name}=VALUE)")
+            raise GalileoError(f"unknown parameter {unknown[0]!r}; this scene takes {', '.join(sorted(base))}"
+                               + (f" and the effects' {', '.join(names)}" if names else ""))
         mass, friction = np.zeros(n), np.zeros(n)
         for i, obj in enumerate(scene.objects):
             for key, known, out in ((f"m{i + 1}", obj.mass, mass), (f"k{i + 1}", obj.friction, friction)):
@@ -164,14 +215,48 @@ def resolve_params(scene: Scene, params) -> PhysParams:
                     raise GalileoError(f"{key} = {given} contradicts the scene, which fixes {key} = {known}; "
                                        f"leave it out or edit the scene")
                 out[i] = float(given if given is not None else known)
+        if effs:
+            values = np.zeros(len(names))
+            j = 0
+            for e in effs:
+                for p in e.params:
+                    if params.get(p.name) is None:
+                        raise GalileoError(f"effect {e.name!r} needs a value of {p.name} ({p.doc or p.unit}); "
+                                           f"give it (CLI: --effect {e.name}=VALUE, e.g. {p.synth_range[0]:g})")
+                    values[j] = float(params[p.name])
+                    j += 1
     else:
-        raise GalileoError("params must be a dict {m1, k1, m2, k2} or a PhysParams")
+        raise GalileoError("params must be a dict {m1, k1, m2, k2, <effect parameters>} or a PhysParams")
     for i in range(n):
         if not (math.isfinite(mass[i]) and 0 < mass[i] <= 1e3):
             raise GalileoError(f"m{i + 1} = {mass[i]} must be a mass in kg in (0, 1000]")
         if not (math.isfinite(friction[i]) and 0 <= friction[i] <= 10):
             raise GalileoError(f"k{i + 1} = {friction[i]} must be a friction coefficient in [0, 10]")
-    return PhysParams(mass, friction)
+    if not effs:
+        return PhysParams(mass, friction)
+    if values is None:  # PhysParams with effects=None and parameterless effects only
+        values = np.zeros(0)
+    p_list = [p for e in effs for p in e.params]
+    for p, v in zip(p_list, values):
+        if not (math.isfinite(v) and p.lower <= v <= p.upper):
+            raise GalileoError(f"{p.name} = {v:g} is outside the effect's range [{p.lower:g}, {p.upper:g}] {p.unit}".rstrip())
+    return PhysParams(mass, friction, values)
+
+
+def _effect_of_param(name: str) -> Effect | None:
+    """The registered effect that has a parameter called ``name``, or None."""
+    for e in available_effects().values():
+        if name in e.param_names:
+            return e
+    return None
+
+
+def effect_value_dict(effects, values) -> dict[str, dict[str, float]]:
+    """``{effect name: {parameter: value}}`` of a flat effect-parameter vector (empty dicts for
+    effects without parameters)."""
+    vals = split_values(effects, np.asarray(values if values is not None else neutral_values(effects), float))
+    return {e.name: {p.name: float(x) for p, x in zip(e.params, v if v is not None else [])}
+            for e, v in zip(effects, vals)}
 
 
 def param_dict(params: PhysParams) -> dict[str, float]:
@@ -213,6 +298,130 @@ def draw_random_params(scene: Scene, rng: np.random.Generator, margin: float = S
     return out
 
 
+def draw_effect_values(effects, rng: np.random.Generator, fixed: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Draw each effect parameter not in ``fixed`` uniformly on its ``synth_range``; keep ``fixed``.
+
+    Returns:
+        ``{parameter name: value}`` for every parameter of ``effects`` (in their order).
+    """
+    fixed = dict(fixed or {})
+    out = {}
+    for e in effects:
+        for p in e.params:
+            out[p.name] = float(fixed[p.name]) if p.name in fixed else float(rng.uniform(*p.synth_range))
+    return out
+
+
+def ramp_friction_at_rest(scene: Scene, effects, values: Mapping[str, float], friction) -> float:
+    """Object 1's friction coefficient on the ramp at rest after the effects' ``friction`` hooks
+    (``k1 + dk_ramp`` for ``ramp_friction``; ``k1`` when no hook changes it).
+
+    Args:
+        scene: the scene.
+        effects: the simulated effects (Effect objects).
+        values: their parameter values by name.
+        friction: (n_objects,) base friction coefficients.
+    """
+    effects = tuple(effects)
+    friction = np.asarray(friction, dtype=float).reshape(-1)
+    if not any(e.friction is not None for e in effects):
+        return float(friction[0])
+    n = scene.n_objects
+    index = build_model(scene, effects=effects)[1]
+    ctx = make_context(scene, index, 1.0 / 240.0)
+    pos = np.stack([object_start_pose(scene, i)[0] for i in range(n)])
+    state = BodyState(pos, np.zeros((n, 3)), np.ones(n))
+    vals = split_values(effects, np.asarray([values[p] for p in effect_param_names(effects)], dtype=float))
+    k = frictions(effects, vals, friction, state, ctx)
+    return float(np.asarray(k)[0, 0])
+
+
+def degenerate_motion(scene: Scene, motion: Motion) -> str | None:
+    """Why ``motion`` would make an uninformative video, or None if it is informative.
+
+    Informative: with two objects, object 1 reaches object 2 and moves it (more than
+    :data:`REACH_DISTANCE`); with one object starting on the ramp, its centre passes the ramp's
+    foot (it reaches the floor); with one object starting on the floor, it moves more than
+    :data:`REACH_DISTANCE`. All within the video.
+    """
+    pos = motion.positions
+    travel = np.linalg.norm(pos - pos[0], axis=-1).max(axis=0)
+    if scene.n_objects == 2:
+        if travel[1] <= REACH_DISTANCE:
+            return "object 1 does not reach object 2 within the video"
+        return None
+    if scene.placement(0) == "ramp":
+        if pos[:, 0, 0].max() <= 0.0:
+            return "object 1 does not reach the floor within the video"
+        return None
+    if travel[0] <= REACH_DISTANCE:
+        return "object 1 does not move"
+    return None
+
+
+def draw_informative_params(scene: Scene, rng: np.random.Generator, effects, *, fps: float, rest_frames: int,
+                            n_frames: int | None = None, fixed: Mapping[str, float] | None = None,
+                            fixed_effects: Mapping[str, float] | None = None,
+                            attempts: int = MAX_REDRAWS) -> dict[str, float]:
+    """Random free parameters and effect values that give an informative video.
+
+    Rule (documented in the CLI help): the effect parameters not in ``fixed_effects`` are drawn
+    uniformly on their ``synth_range``; then the scene's free masses and frictions as
+    :func:`draw_random_params` draws them, with object 1's friction on the ramp *after the
+    effects* (e.g. ``k1 + dk_ramp`` for ``ramp_friction``, see :func:`ramp_friction_at_rest`)
+    below tan(theta) - :data:`SLIDE_MARGIN`; then the motion is simulated in C MuJoCo for the
+    video's length and must pass :func:`degenerate_motion` (object 1 reaches object 2, or the
+    floor). A draw that breaks a rule is thrown away and everything is drawn again, at most
+    ``attempts`` times.
+
+    Args:
+        scene: the scene.
+        rng: random generator.
+        effects: the simulated effects (names or Effects; the scene's own are added).
+        fps, rest_frames, n_frames: the video's timing (``n_frames`` None: automatic length).
+        fixed: base parameters to keep (``m1``, ...).
+        fixed_effects: effect parameter values to keep, by parameter name.
+        attempts: draws before giving up.
+
+    Returns:
+        ``{"m1", "k1", ..., <effect parameters>}``, ready for :func:`render_video`.
+
+    Raises:
+        GalileoError: no draw in ``attempts`` gave an informative video (the message says why
+            the last one failed).
+    """
+    effs = scene_effects(scene, effects)
+    check_applicable(effs, scene)
+    fixed = dict(fixed or {})
+    limit = math.tan(scene.ramp.angle) - SLIDE_MARGIN
+    on_ramp = scene.placement(0) == "ramp"
+    reason = "no draw was tried"
+    for _ in range(max(1, attempts)):
+        values = draw_effect_values(effs, rng, fixed_effects)
+        probe = np.full(scene.n_objects, max(limit, 0.0))
+        offset = max(0.0, ramp_friction_at_rest(scene, effs, values, probe) - probe[0]) if on_ramp else 0.0
+        try:
+            base = draw_random_params(scene, rng, margin=SLIDE_MARGIN + offset, fixed=fixed)
+        except GalileoError as err:
+            reason = str(err).split(";")[0]
+            continue
+        params = {**base, **values}
+        phys = resolve_params(scene, params, effs)
+        if on_ramp:
+            k_ramp = ramp_friction_at_rest(scene, effs, values, phys.friction)
+            if k_ramp >= limit:
+                reason = (f"object 1's friction on the ramp {k_ramp:.3g} is not below "
+                          f"tan(theta) - {SLIDE_MARGIN} = {limit:.3g}")
+                continue
+        motion = simulate_motion(scene, phys, fps, rest_frames, n_frames, effects=effs)
+        reason = degenerate_motion(scene, motion)
+        if reason is None:
+            return params
+    names = ", ".join(e.name for e in effs)
+    raise GalileoError(f"no random draw in {attempts} tries gives an informative video with effect(s) {names} "
+                       f"(last: {reason}); fix fewer values, lengthen --duration or use a steeper ramp")
+
+
 # --------------------------------------------------------------------------- physics
 
 
@@ -239,25 +448,98 @@ def _centres(qpos: np.ndarray, index: ModelIndex) -> np.ndarray:
 
 def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: int,
                     n_frames: int | None = None, max_seconds: float = MAX_SECONDS,
-                    settle_seconds: float = SETTLE_SECONDS) -> Motion:
+                    settle_seconds: float = SETTLE_SECONDS, effects=(), effect_values=None) -> Motion:
     """Simulate the scene in C MuJoCo and sample it at the video's frames.
 
     Args:
         scene: the scene (its ``simulation.substeps`` sets the timestep).
-        params: masses and frictions, (n_objects,) each.
+        params: masses and frictions, (n_objects,) each (and optionally ``effects``, the
+            effect parameter values).
         fps: frames per second.
         rest_frames: frames before release.
         n_frames: total frames; ``None``: until every object has been at rest (slower than
             :data:`REST_SPEED`) for ``settle_seconds``, at most ``max_seconds`` of video.
         max_seconds: cap of the automatic length in s.
         settle_seconds: rest time that ends an automatic-length video, in s.
+        effects: extra effects (names or Effects) simulated on top of the scene's own
+            ``scene.effects``. With no effect at all, the base model is stepped with
+            ``mj_step(nstep=substeps)`` per frame.
+        effect_values: the effects' parameter values: a flat vector ordered as
+            :func:`~galileo_jax.effects.runtime.effect_param_names`, or a dict by parameter
+            name; ``None``: ``params.effects``, else the neutral values.
+
+    With effects, the model is built with their ``build`` hooks, masses and frictions are set
+    as without, and at release the effects' model updates and release velocities are applied
+    (:func:`~galileo_jax.effects.runtime.apply_c_model`); then every physics step goes through
+    :func:`~galileo_jax.effects.runtime.c_step` (forces through ``xfrc_applied``, per-step
+    friction), the physics of the MJX rollout (:func:`galileo_jax.simulate.rollout`).
 
     Returns:
         :class:`Motion`.
 
     Raises:
-        GalileoError: the simulation diverged.
+        GalileoError: the simulation diverged, an effect does not apply to the scene, or the
+            effect values do not fit the effects.
     """
+    effs = scene_effects(scene, effects)
+    if not effs:
+        return _simulate_base(scene, params, fps, rest_frames, n_frames, max_seconds, settle_seconds)
+    check_applicable(effs, scene)
+    values = _effect_vector(effs, params, effect_values)
+    substeps = scene.simulation.substeps
+    dt = physics_timestep(fps, substeps)
+    model, index = build_model(scene, timestep=dt, effects=effs)
+    data = mujoco.MjData(model)
+    set_physics(model, data, index, params)
+    mujoco.mj_forward(model, data)
+    ctx = make_context(scene, index, dt)
+    k_base = np.asarray(params.friction, dtype=np.float64).reshape(-1)
+    step_hooks = has_step_hooks(effs)
+    limit = n_frames if n_frames is not None else max(rest_frames + 2, int(round(max_seconds * fps)))
+    settle = max(1, int(round(settle_seconds * fps)))
+    frames = [data.qpos.copy()] * (rest_frames + 1)
+    apply_c_model(effs, values, model, data, index, ctx, k_base)  # release
+    still = 0
+    while len(frames) < limit:
+        if step_hooks:
+            for _ in range(substeps):
+                c_step(effs, values, model, data, index, ctx, k_base)
+        else:  # model updates and release velocity only: plain steps are c_step without hooks
+            mujoco.mj_step(model, data, nstep=substeps)
+        if not np.all(np.isfinite(data.qpos)):
+            raise GalileoError("the simulation diverged (non-finite state); check the masses, frictions and "
+                               "effect values")
+        frames.append(data.qpos.copy())
+        step = np.linalg.norm(_centres(frames[-1], index) - _centres(frames[-2], index), axis=-1)
+        still = still + 1 if np.all(step < REST_SPEED / fps) else 0
+        if n_frames is None and still >= settle:
+            break
+    qpos = np.stack(frames)
+    return Motion(qpos, _centres(qpos, index), rest_frames, fps)
+
+
+def _effect_vector(effects, params: PhysParams, effect_values) -> np.ndarray:
+    """The flat (n_effect_params,) values of ``effects`` from ``effect_values`` / ``params.effects``."""
+    names = effect_param_names(effects)
+    if effect_values is None:
+        effect_values = params.effects if params.effects is not None else neutral_values(effects)
+    if isinstance(effect_values, Mapping):
+        missing = [n for n in names if n not in effect_values]
+        extra = sorted(set(effect_values) - set(names))
+        if missing or extra:
+            what = f"no value of {missing[0]}" if missing else f"unknown effect parameter {extra[0]!r}"
+            raise GalileoError(f"effect values: {what}; the effects take {', '.join(names) or 'none'}")
+        return np.asarray([float(effect_values[n]) for n in names], dtype=np.float64)
+    values = np.asarray(effect_values, dtype=np.float64).reshape(-1)
+    if values.shape != (len(names),):
+        raise GalileoError(f"{values.size} effect values given but the effects take {len(names)} "
+                           f"({', '.join(names) or 'none'})")
+    return values
+
+
+def _simulate_base(scene: Scene, params: PhysParams, fps: float, rest_frames: int, n_frames: int | None,
+                   max_seconds: float, settle_seconds: float) -> Motion:
+    """:func:`simulate_motion` of the base model (no effect): whole frames of ``mj_step``."""
     substeps = scene.simulation.substeps
     model, index = build_model(scene, timestep=physics_timestep(fps, substeps))
     data = mujoco.MjData(model)
@@ -401,22 +683,36 @@ def write_video(path: Path, frames: Iterator[np.ndarray], fps: float, size: tupl
 
 
 def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.View, *, noise_sd: float,
-                 hand: bool, seed: int, video: str) -> dict:
+                 hand: bool, seed: int, video: str, effects=()) -> dict:
     """The ground-truth JSON record of a rendered video.
 
     Keys: ``video`` (file name), ``scene`` (scene name), ``m1, k1, m2, k2`` (those of the
     scene's objects; kg and dimensionless), ``phi`` = (m1 - m2) / (m1 + m2) (two objects),
-    ``fps``, ``release_time`` (s), ``release_frame``, ``n_frames``, ``width``, ``height``
-    (px), ``noise_sd`` (grey levels), ``hand``, ``seed``, ``substeps``, ``pixels_per_metre``,
-    ``foot_pixel`` ([u, v]), ``moved`` (per object, whether it moved more than 1 mm),
-    ``pixels`` (N x n_objects x [u, v]: each object's centre in the image, px) and
-    ``positions`` (N x n_objects x [x, z]: world x and vertical of each centre, m).
+    then, when effects were simulated, each effect parameter by its name (e.g.
+    ``drag_quadratic``; units in the effect's :class:`~galileo_jax.effects.EffectParam`),
+    ``effects`` ({effect name: {parameter: value}}: every simulated effect, the scene's own
+    and the hidden ones; ``{}`` for the base model), ``hidden_effects`` (names of the
+    simulated effects that the written scene file does not list), ``fps``, ``release_time``
+    (s), ``release_frame``, ``n_frames``, ``width``, ``height`` (px), ``noise_sd`` (grey
+    levels), ``hand``, ``seed``, ``substeps``, ``pixels_per_metre``, ``foot_pixel`` ([u, v]),
+    ``moved`` (per object, whether it moved more than 1 mm), ``pixels`` (N x n_objects x
+    [u, v]: each object's centre in the image, px) and ``positions`` (N x n_objects x [x, z]:
+    world x and vertical of each centre, m).
+
+    ``effects``: the simulated effects (names or Effects, the scene's own included), in the
+    order of ``params.effects``.
     """
+    effects = scene_effects(scene, effects)
     rec = {"video": video, "scene": scene.name}
     rec.update(param_dict(params))
     if scene.n_objects == 2:
         m1, m2 = (float(m) for m in params.mass)
         rec["phi"] = (m1 - m2) / (m1 + m2)
+    by_effect = effect_value_dict(effects, params.effects) if effects else {}
+    for values in by_effect.values():
+        rec.update(values)
+    rec["effects"] = by_effect
+    rec["hidden_effects"] = [e.name for e in effects if e.name not in scene.effects]
     travel = np.linalg.norm(motion.positions - motion.positions[0], axis=-1).max(axis=0)
     rec.update({
         "fps": motion.fps, "release_time": motion.release_time, "release_frame": motion.release_frame,
@@ -458,12 +754,13 @@ def _check_options(fps: float, duration: float | None, width: int, height: int, 
 
 def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration: float | None = None,
                  width: int = 640, height: int = 360, noise_sd: float = 2.0, hand: bool = False,
-                 rest_frames: int | None = None, seed: int = 0, progress: bool = True) -> dict:
+                 rest_frames: int | None = None, seed: int = 0, progress: bool = True, effects=None) -> dict:
     """Simulate and render one ramp video with its calibrated scene file and ground truth.
 
     Args:
         scene: the scene (start positions, shapes; its camera block is replaced).
-        params: ``{"m1", "k1", "m2", "k2"}`` or :class:`PhysParams` (see :func:`resolve_params`).
+        params: ``{"m1", "k1", "m2", "k2"}`` plus the value of every effect parameter by name
+            (e.g. ``"drag_quadratic"``), or :class:`PhysParams` (see :func:`resolve_params`).
         out_path: the ``.mp4`` to write; ``<stem>.yaml`` and ``<stem>.truth.json`` go beside it.
         fps: frames per second.
         duration: video length in s (rest frames included); ``None``: until all objects have
@@ -474,12 +771,17 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
         rest_frames: frames at rest before release (default ``round(0.3 * fps)``).
         seed: seed of the pixel noise.
         progress: show a progress bar.
+        effects: hidden effects (names or :class:`~galileo_jax.effects.Effect`), simulated
+            and drawn on top of the scene's own ``scene.effects``. They go into the truth
+            (``effects``, ``hidden_effects`` and each parameter at top level), not into the
+            written scene file, which describes only the setup (it keeps the scene's own
+            ``effects``).
 
     Returns:
         The truth record (as written to ``<stem>.truth.json``; see :func:`truth_record`).
 
     Raises:
-        GalileoError: bad parameters or options, or rendering is unavailable.
+        GalileoError: bad parameters, effects or options, or rendering is unavailable.
     """
     out_path = Path(out_path)
     if out_path.suffix.lower() != ".mp4":
@@ -488,22 +790,26 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
         raise GalileoError(f"output folder {out_path.parent} does not exist; create it first")
     rest_frames = max(1, int(round(REST_SECONDS * fps))) if rest_frames is None else int(rest_frames)
     _check_options(fps, duration, width, height, noise_sd, rest_frames)
-    phys = resolve_params(scene, params)
+    effs = scene_effects(scene, effects or ())
+    check_applicable(effs, scene)
+    phys = resolve_params(scene, params, effs)
     n_frames = None if duration is None else int(round(duration * fps))
-    motion = simulate_motion(scene, phys, fps, rest_frames, n_frames)
+    motion = simulate_motion(scene, phys, fps, rest_frames, n_frames, effects=effs)
     if hand and n_frames is None:  # let the hand leave the frame before the video ends
         min_frames = rest_frames + int(math.ceil((render.HAND_EXIT_TIME + 0.1) * fps))
         if motion.n_frames < min_frames:
-            motion = simulate_motion(scene, phys, fps, rest_frames, min_frames)
+            motion = simulate_motion(scene, phys, fps, rest_frames, min_frames, effects=effs)
     view = render.frame_view(scene, motion.positions, width, height)
-    model = render.build_render_model(scene, view, physics_timestep(fps, scene.simulation.substeps), hand=hand)
+    model = render.build_render_model(scene, view, physics_timestep(fps, scene.simulation.substeps), hand=hand,
+                                      effects=effs)
     hand_pos = hand_quat = None
     if hand:
         hand_quat = render.hand_rest_pose(scene)[1]
         hand_pos = np.stack([render.hand_position(scene, view, t, motion.release_time) for t in motion.frame_times])
     frames = render_frames(model, view, motion.qpos, hand_pos, hand_quat, noise_sd, np.random.default_rng(seed))
     container_fps = write_video(out_path, frames, fps, (width, height), motion.n_frames, progress)
-    truth = truth_record(scene, phys, motion, view, noise_sd=noise_sd, hand=hand, seed=seed, video=out_path.name)
+    truth = truth_record(scene, phys, motion, view, noise_sd=noise_sd, hand=hand, seed=seed, video=out_path.name,
+                         effects=effs)
     yaml_path = out_path.with_suffix(".yaml")
     tmp = _temp_path(yaml_path)
     try:
@@ -539,6 +845,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the noise and of --random draws")
     p.add_argument("--random", type=int, metavar="N", help="render N videos with random free parameters "
                    "(k1 < tan(theta) - 0.05 so object 1 slides); given --m1 etc. are kept fixed")
+    p.add_argument("--effect", action="append", metavar="NAME[=VALUE]",
+                   help="simulate a hidden physical effect (repeatable): NAME=VALUE sets its parameter "
+                        "(NAME=V1,V2 for several, in order), NAME alone with --random draws it uniformly from the "
+                        "parameter's synth range, 'none' means no effect. The effect goes into the truth, not the "
+                        "written scene file. With --random and effects, draws are redone (at most 20 times) "
+                        "until object 1's friction on the ramp after the effects (k1 + dk_ramp) is below "
+                        "tan(theta) - 0.05 and the simulated object 1 reaches object 2 (one object: the floor) "
+                        f"within the video. Effects: {', '.join(sorted(available_effects()))}")
     p.add_argument("--width", type=int, default=640, help="image width in px (default 640)")
     p.add_argument("--height", type=int, default=360, help="image height in px (default 360)")
     p.add_argument("--rest", type=float, default=REST_SECONDS, help="seconds held at rest before release (default 0.3)")
@@ -563,6 +877,51 @@ def _outputs(out: str, stem: str, count: int, random: bool) -> list[Path]:
     return [path / f"{stem}_{i:03d}.mp4" for i in range(count)]
 
 
+def parse_effect_options(items, random: bool) -> tuple[list[str], dict[str, float]]:
+    """Parse ``--effect`` options into (effect names in order, {parameter: value}).
+
+    ``NAME=VALUE`` (``NAME=V1,V2`` for an effect with several parameters, in their order) fixes
+    the values; ``NAME`` alone is allowed for an effect without parameters, or with ``random``
+    (its values are drawn); ``none`` means no effect.
+
+    Raises:
+        GalileoError: an unknown effect, a missing or malformed value, a repeated effect, or
+            ``none`` given with other effects.
+    """
+    names: list[str] = []
+    values: dict[str, float] = {}
+    items = list(items or [])
+    if any(i.strip().lower() == "none" for i in items):
+        if len(items) > 1:
+            raise GalileoError("--effect none means no effect; do not combine it with other --effect options")
+        return [], {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        effect = get_effect(name)
+        if effect.name in names:
+            raise GalileoError(f"--effect {effect.name} is given twice; give each effect once")
+        names.append(effect.name)
+        if not sep:
+            if effect.params and not random:
+                p = effect.params[0]
+                raise GalileoError(f"--effect {name} needs a value: --effect {name}=VALUE ({p.name}, {p.doc or p.unit}; "
+                                   f"e.g. {p.synth_range[0]:g} to {p.synth_range[1]:g}), or use --random to draw it")
+            continue
+        if not effect.params:
+            raise GalileoError(f"--effect {item}: effect {name} has no parameter; give --effect {name} alone")
+        parts = [t.strip() for t in text.split(",")]
+        if len(parts) != len(effect.params):
+            raise GalileoError(f"--effect {item}: {name} takes {len(effect.params)} value(s) "
+                               f"({', '.join(effect.param_names)}), got {len(parts)}")
+        for p, t in zip(effect.params, parts):
+            try:
+                values[p.name] = float(t)
+            except ValueError:
+                raise GalileoError(f"--effect {item}: {t!r} is not a number") from None
+    return names, values
+
+
 @cli_entry
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``python -m galileo_jax.synth``); returns the exit code."""
@@ -576,17 +935,38 @@ def main(argv: list[str] | None = None) -> int:
         raise GalileoError(f"--random {args.random}: give a count in [1, 10000]")
     if not math.isfinite(args.rest) or args.rest <= 0:
         raise GalileoError(f"--rest {args.rest}: give a positive time in s")
+    effect_names, effect_values = parse_effect_options(args.effect, args.random is not None)
+    effs = scene_effects(scene, effect_names)
+    check_applicable(effs, scene)
+    if args.random is None:  # every effect parameter needs a value (also those of the scene's own effects)
+        missing = [(e, p) for e in effs for p in e.params if p.name not in effect_values]
+        if missing:
+            e, p = missing[0]
+            raise GalileoError(f"effect {e.name!r} needs a value of {p.name}: give --effect {e.name}=VALUE "
+                               f"(e.g. {p.synth_range[0]:g} to {p.synth_range[1]:g}) or use --random")
     count = args.random or 1
     paths = _outputs(args.out, scene.name.replace(" ", "_"), count, args.random is not None)
     rng = np.random.default_rng(args.seed)
+    rest_frames = max(1, int(round(args.rest * args.fps)))
+    n_frames = None if args.duration is None else int(round(args.duration * args.fps))
+    names = ["m1", "k1", "m2", "k2"] + list(effect_param_names(effs))
+    if args.random and effs:  # the draws simulate the video: check its options first
+        _check_options(args.fps, args.duration, args.width, args.height, args.noise, rest_frames)
     for i, path in enumerate(paths):
-        params = draw_random_params(scene, rng, fixed=given) if args.random else given
+        if args.random and effs:
+            params = draw_informative_params(scene, rng, effect_names, fps=args.fps, rest_frames=rest_frames,
+                                             n_frames=n_frames, fixed=given, fixed_effects=effect_values)
+        elif args.random:
+            params = draw_random_params(scene, rng, fixed=given)
+        else:
+            params = {**given, **effect_values}
         truth = render_video(scene, params, path, fps=args.fps, duration=args.duration, width=args.width,
                              height=args.height, noise_sd=args.noise, hand=args.hand,
-                             rest_frames=max(1, int(round(args.rest * args.fps))), seed=args.seed + i,
-                             progress=not args.quiet)
-        values = ", ".join(f"{k}={truth[k]:.4g}" for k in ("m1", "k1", "m2", "k2") if k in truth)
-        print(f"{path}: {truth['n_frames']} frames at {truth['fps']:g} fps, {values}")
+                             rest_frames=rest_frames, seed=args.seed + i,
+                             progress=not args.quiet, effects=effect_names)
+        values = ", ".join(f"{k}={truth[k]:.4g}" for k in names if k in truth)
+        hidden = f" (hidden: {', '.join(truth['hidden_effects'])})" if truth["hidden_effects"] else ""
+        print(f"{path}: {truth['n_frames']} frames at {truth['fps']:g} fps, {values}{hidden}")
     return 0
 
 

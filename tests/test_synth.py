@@ -11,6 +11,13 @@ rendered once per module; the tests check that
   (measured on five parameter sets: overall RMS 0.004-0.010 m/s with MJX in float32, most of
   it float32 round-off amplified by the impact; the bound is 0.02 m/s);
 * bad CLI input gives one line on stderr and a non-zero exit code.
+
+Hidden effects (:mod:`galileo_jax.effects`): for every shipped effect with a parameter, the C
+MuJoCo motion of :func:`synth.simulate_motion` matches the MJX rollout with the same effect
+(RMS bound :data:`EFFECT_RMS_TOL`) and differs clearly from the base model; the ``rolling``
+effect gives the rolling acceleration g sin(theta) / (1 + alpha); a rendered video with a hidden
+effect has it in its truth and not in its scene file; random draws with effects are
+informative; bad ``--effect`` options give one line.
 """
 
 from __future__ import annotations
@@ -28,11 +35,12 @@ import pytest
 
 from galileo_jax import render, synth
 from galileo_jax.calibration import calibration
+from galileo_jax.effects import get_effect
 from galileo_jax.errors import GalileoError
 from galileo_jax.model import model_index
 from galileo_jax.observation import profile_from_positions
-from galileo_jax.scene import load_scene
-from galileo_jax.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
+from galileo_jax.scene import load_scene, scene_from_dict
+from galileo_jax.simulate import PhysParams, make_simulator, scene_effects, steps_needed, velocity_profile
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ramp_20.yaml"
 PARAMS = {"m1": 0.6, "k1": 0.2, "m2": 0.3, "k2": 0.25}
@@ -196,6 +204,214 @@ def test_resolve_params_errors(scene):
 ])
 def test_cli_bad_input_is_one_line(args, message, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
+    code = synth.main(args)
+    err = capsys.readouterr().err.strip()
+    assert code != 0
+    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
+    assert message in err
+    assert not list(tmp_path.rglob("*.mp4"))
+
+
+# --------------------------------------------------------------------------- hidden effects
+#: Value of each shipped effect's parameter in the C-vs-MJX tests (inside its synth range;
+#: restitution at 0.6, below the e >= 0.7 where MJX in float32 departs from C MuJoCo).
+EFFECT_VALUES = {"quadratic_drag": 1.05, "linear_drag": 1.2, "restitution": 0.6, "ramp_friction": 0.09,
+                 "initial_push": 0.375, "velocity_friction": 0.15}
+#: Frames (30 fps) of the C-vs-MJX effect tests: 3 at rest, then 1.2 s of motion.
+EFFECT_FRAMES, EFFECT_REST = 39, 3
+#: Bound on the RMS difference (m/s) of the C and MJX velocity profiles with an effect. Measured
+#: on ramp_20 with three base parameter sets x (low, mid, high) of each synth range (restitution
+#: only up to 0.6): 0.0001-0.015 m/s, MJX in float32 (float64 MJX: < 0.005, 0 without impact).
+EFFECT_RMS_TOL = 0.025
+
+
+def _rms(a, b) -> float:
+    return math.sqrt(float(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+
+
+@pytest.mark.parametrize("name", sorted(EFFECT_VALUES))
+def test_effect_c_mujoco_matches_mjx(scene, name):
+    """simulate_motion with an effect (C MuJoCo, c_step hooks) against the MJX rollout with the
+    same effect and value; the effect must also change the profile far more than the tolerance."""
+    effect = get_effect(name)
+    params = {**PARAMS, effect.params[0].name: EFFECT_VALUES[name]}
+    phys = synth.resolve_params(scene, params, [name])
+    assert phys.effects is not None and phys.effects.shape == (1,)
+    times = np.arange(EFFECT_FRAMES) / FPS
+    motion = synth.simulate_motion(scene, phys, FPS, EFFECT_REST, EFFECT_FRAMES, effects=[name])
+    c_profile = profile_from_positions(motion.positions, times)
+    base = synth.simulate_motion(scene, synth.resolve_params(scene, PARAMS), FPS, EFFECT_REST, EFFECT_FRAMES)
+    base_profile = profile_from_positions(base.positions, times)
+    sim = make_simulator(scene, FPS, scene_effects(scene, [name]))
+    p = PhysParams(jnp.asarray(phys.mass), jnp.asarray(phys.friction), jnp.asarray(phys.effects))
+    mjx_profile = np.asarray(jax.jit(lambda q: velocity_profile(sim, q, jnp.asarray(times), motion.release_time,
+                                                                steps_needed(sim, times[-1])))(p))
+    assert c_profile.shape == mjx_profile.shape
+    rms = _rms(c_profile, mjx_profile)
+    assert rms < EFFECT_RMS_TOL, (name, rms)
+    assert _rms(c_profile, base_profile) > 3 * EFFECT_RMS_TOL, name  # measured 0.09-0.24 m/s
+    # The values may also come as a dict or through effect_values; the neutral value is the base model.
+    same = synth.simulate_motion(scene, synth.resolve_params(scene, PARAMS), FPS, EFFECT_REST, EFFECT_FRAMES,
+                                 effects=[name], effect_values={effect.params[0].name: EFFECT_VALUES[name]})
+    np.testing.assert_array_equal(same.qpos, motion.qpos)
+    neutral = synth.simulate_motion(scene, synth.resolve_params(scene, PARAMS), FPS, EFFECT_REST, EFFECT_FRAMES,
+                                    effects=[name])
+    assert _rms(profile_from_positions(neutral.positions, times), base_profile) < 1e-6
+
+
+def _rolling_scene(friction: float):
+    r = 0.03
+    return scene_from_dict({
+        "name": "roll10", "ramp": {"angle_deg": 10, "length": 0.8}, "floor": {"length": 1.0},
+        "objects": [{"shape": "box", "size": [0.06, 0.1, 2 * r], "start": 0.6, "friction": friction, "mass": 0.4,
+                     "rolling": {"radius": r, "inertia_ratio": 0.5}}],
+        "camera": {"pixels_per_metre": 500}})
+
+
+def _slope_acceleration(scene, effects):
+    """(acceleration along the slope in m/s^2 while object 1 is on the ramp, distance travelled in m)."""
+    th = scene.ramp.angle
+    motion = synth.simulate_motion(scene, synth.resolve_params(scene, {}), FPS, 1, 31, effects=effects)
+    x = motion.positions[:, 0, 0]
+    s = (x - x[0]) / math.cos(th)  # distance down the slope
+    t = motion.frame_times - motion.release_time
+    on = (t >= 0) & (x < -0.03)
+    return 2.0 * np.polyfit(t[on], s[on], 2)[0], s[-1]
+
+
+@pytest.mark.parametrize("friction", [0.5, 0.1])
+def test_rolling_acceleration(friction):
+    """A box declared round (rolling: r = h/2, I = 0.5 m r^2) on a 10 degree ramp: with the
+    rolling effect it rolls at g sin / (1 + 0.5) (measured 1.1351 vs 1.1357 m/s^2 at k = 0.5);
+    without it, it stays put (k = 0.5 > tan 10 deg) or slides at g (sin - k cos) (k = 0.1)."""
+    scene = _rolling_scene(friction)
+    g, th = scene.gravity, scene.ramp.angle
+    a_roll, _ = _slope_acceleration(scene, ["rolling"])
+    assert a_roll == pytest.approx(g * math.sin(th) / 1.5, rel=0.03)
+    a_slide, travel = _slope_acceleration(scene, [])
+    if friction > math.tan(th):
+        assert abs(travel) < 2e-3 and abs(a_slide) < 0.01
+    else:
+        assert a_slide == pytest.approx(g * (math.sin(th) - friction * math.cos(th)), rel=0.03)
+
+
+def test_render_model_draws_structural_effects():
+    scene = _rolling_scene(0.5)
+    view = render.View((0.0, 0.1), 200.0, 64, 48)
+    plain = render.build_render_model(scene, view, 1.0 / 240.0)
+    rolling = render.build_render_model(scene, view, 1.0 / 240.0, effects=["rolling"])
+    gid = mujoco.mj_name2id(rolling, mujoco.mjtObj.mjOBJ_GEOM, "object1")
+    assert plain.geom_type[gid] == mujoco.mjtGeom.mjGEOM_BOX
+    assert rolling.geom_type[gid] == mujoco.mjtGeom.mjGEOM_CYLINDER
+    assert rolling.geom_size[gid][0] == pytest.approx(0.03) and rolling.nq == plain.nq
+
+
+def test_render_video_with_hidden_effect(scene, tmp_path):
+    """mp4 + yaml + truth: the effect is in the truth (by effect and at top level), not in the yaml."""
+    params = {**PARAMS, "drag_quadratic": 0.9}
+    path = tmp_path / "drag.mp4"
+    truth = synth.render_video(scene, params, path, fps=FPS, duration=1.0, width=160, height=90, noise_sd=0.0,
+                               rest_frames=3, progress=False, effects=["quadratic_drag"])
+    assert path.is_file() and path.with_suffix(".yaml").is_file()
+    assert json.loads(path.with_suffix(".truth.json").read_text()) == truth
+    assert truth["effects"] == {"quadratic_drag": {"drag_quadratic": 0.9}}
+    assert truth["drag_quadratic"] == 0.9 and truth["hidden_effects"] == ["quadratic_drag"]
+    text = path.with_suffix(".yaml").read_text()
+    assert "drag" not in text and "effects" not in text
+    assert load_scene(path.with_suffix(".yaml")).effects == []
+    # The video shows the motion with drag, not the base motion.
+    with_drag = synth.simulate_motion(scene, synth.resolve_params(scene, params, ["quadratic_drag"]), FPS, 3, 30,
+                                      effects=["quadratic_drag"])
+    base = synth.simulate_motion(scene, synth.resolve_params(scene, PARAMS), FPS, 3, 30)
+    np.testing.assert_allclose(truth["positions"], with_drag.positions, atol=1e-6)
+    assert np.abs(np.asarray(truth["positions"]) - base.positions).max() > 0.01
+
+
+def test_scene_own_effects_stay_in_yaml(tmp_path):
+    """A scene that lists its own effect keeps it in the written yaml; only extra ones are hidden."""
+    scene = _rolling_scene(0.5).model_copy(update={"effects": ["rolling"]})
+    path = tmp_path / "roll.mp4"
+    truth = synth.render_video(scene, {"drag_linear": 0.5}, path, fps=FPS, duration=0.5, width=64, height=48,
+                               noise_sd=0.0, rest_frames=1, progress=False, effects=["linear_drag"])
+    assert truth["effects"] == {"rolling": {}, "linear_drag": {"drag_linear": 0.5}}
+    assert truth["hidden_effects"] == ["linear_drag"]
+    assert load_scene(path.with_suffix(".yaml")).effects == ["rolling"]
+    assert truth["moved"] == [True]  # it rolls (k = 0.5 would hold a sliding box)
+
+
+def test_truth_of_base_video_has_no_effects(video):
+    _, truth = video
+    assert truth["effects"] == {} and truth["hidden_effects"] == []
+
+
+def test_resolve_params_effect_errors(scene):
+    with pytest.raises(GalileoError, match="needs a value of drag_quadratic"):
+        synth.resolve_params(scene, PARAMS, ["quadratic_drag"])
+    with pytest.raises(GalileoError, match="effect 'quadratic_drag', which is not simulated"):
+        synth.resolve_params(scene, {**PARAMS, "drag_quadratic": 0.9})
+    with pytest.raises(GalileoError, match="unknown parameter 'drag'"):
+        synth.resolve_params(scene, {**PARAMS, "drag": 0.9}, ["quadratic_drag"])
+    with pytest.raises(GalileoError, match="outside the effect's range"):
+        synth.resolve_params(scene, {**PARAMS, "drag_quadratic": 9.0}, ["quadratic_drag"])
+    with pytest.raises(GalileoError, match="unknown effect"):
+        synth.resolve_params(scene, PARAMS, ["quadratic_dra"])
+    p = synth.resolve_params(scene, {**PARAMS, "drag_quadratic": 0.9, "v0": 0.3}, ["quadratic_drag", "initial_push"])
+    np.testing.assert_array_equal(p.effects, [0.9, 0.3])
+    assert synth.resolve_params(scene, PARAMS).effects is None
+
+
+def test_random_effect_draws_are_informative(scene):
+    """ramp_friction on the 10 degree ramp: k1 + dk_ramp < tan(theta) - margin, and object 2 is hit."""
+    ramp10 = load_scene(SCENE.parent / "ramp_10.yaml")
+    rng = np.random.default_rng(1)
+    lo, hi = get_effect("ramp_friction").params[0].synth_range
+    for _ in range(3):
+        p = synth.draw_informative_params(ramp10, rng, ["ramp_friction"], fps=FPS, rest_frames=3, n_frames=60)
+        assert lo <= p["dk_ramp"] <= hi
+        assert p["k1"] + p["dk_ramp"] < math.tan(ramp10.ramp.angle) - synth.SLIDE_MARGIN
+        motion = synth.simulate_motion(ramp10, synth.resolve_params(ramp10, p, ["ramp_friction"]), FPS, 3, 60,
+                                       effects=["ramp_friction"])
+        assert synth.degenerate_motion(ramp10, motion) is None
+    # A fixed friction that holds object 1 on the ramp: no informative draw, one clear error.
+    with pytest.raises(GalileoError, match="no random draw"):
+        synth.draw_informative_params(ramp10, rng, ["ramp_friction"], fps=FPS, rest_frames=3, n_frames=60,
+                                      fixed={"k1": 0.15}, fixed_effects={"dk_ramp": 0.1}, attempts=3)
+
+
+def test_cli_random_with_effect(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = synth.main(["--scene", str(SCENE), "--random", "2", "--effect", "quadratic_drag", "--out", str(out),
+                       "--width", "64", "--height", "48", "--duration", "1.5", "--noise", "0", "--quiet"])
+    assert code == 0
+    truths = [json.loads(p.read_text()) for p in sorted(out.glob("*.truth.json"))]
+    assert len(truths) == 2
+    lo, hi = get_effect("quadratic_drag").params[0].synth_range
+    for t in truths:
+        assert lo <= t["drag_quadratic"] <= hi and t["hidden_effects"] == ["quadratic_drag"]
+        assert t["moved"] == [True, True]
+    assert truths[0]["drag_quadratic"] != truths[1]["drag_quadratic"]
+    assert "drag_quadratic=" in capsys.readouterr().out
+    code = synth.main(["--scene", str(SCENE), *sum([["--" + k, str(v)] for k, v in PARAMS.items()], []),
+                       "--effect", "none", "--out", str(tmp_path / "none.mp4"), "--width", "64", "--height", "48",
+                       "--duration", "0.5", "--quiet"])
+    assert code == 0 and json.loads((tmp_path / "none.truth.json").read_text())["effects"] == {}
+
+
+@pytest.mark.parametrize("effect, message", [
+    (["--effect", "foo"], "unknown effect 'foo'"),
+    (["--effect", "quadratic_drag"], "needs a value"),
+    (["--effect", "quadratic_drag=abc"], "not a number"),
+    (["--effect", "quadratic_drag=1,2"], "takes 1 value"),
+    (["--effect", "quadratic_drag=9"], "outside the effect's range"),
+    (["--effect", "rolling"], "does not apply"),
+    (["--effect", "rolling=1"], "has no parameter"),
+    (["--effect", "none", "--effect", "linear_drag=1"], "none"),
+    (["--effect", "linear_drag=1", "--effect", "linear_drag=2"], "twice"),
+])
+def test_cli_bad_effect_is_one_line(effect, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    args = ["--scene", str(SCENE), *sum([["--" + k, str(v)] for k, v in PARAMS.items()], []), "--out", "x.mp4",
+            "--width", "64", "--height", "48", "--duration", "0.5", *effect]
     code = synth.main(args)
     err = capsys.readouterr().err.strip()
     assert code != 0

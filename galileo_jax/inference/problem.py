@@ -28,7 +28,8 @@ from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, Likelihood, m
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import PhysParams, Simulator, make_simulator, steps_needed, velocity_profile
+from galileo_jax.simulate import (PhysParams, Simulator, make_simulator, scene_effects, steps_needed,
+                                  velocity_profile)
 
 #: Default central-difference step in unconstrained coordinates z (see inference/grad.py for
 #: the measurement that chose it).
@@ -75,6 +76,8 @@ class Problem:
         likelihood: a likelihood kind (``galileo_jax.likelihood.KINDS``), default "gaussian_ma1".
         sd_model: model-error floor in m/s for the Gaussian kinds.
         max_batch: largest vmapped batch of rollouts; larger batches are chunked.
+        effects: extra physical effects (names or :class:`~galileo_jax.effects.Effect`), added
+            to the scene's own ``effects``; their parameters follow the base ones in theta.
 
     Raises:
         ValueError: the observation does not match the scene (number of objects), or any
@@ -82,7 +85,7 @@ class Problem:
     """
 
     def __init__(self, scene: Scene, observation: Observation, likelihood: str = DEFAULT_KIND,
-                 sd_model: float = DEFAULT_SD_MODEL, max_batch: int = DEFAULT_MAX_BATCH):
+                 sd_model: float = DEFAULT_SD_MODEL, max_batch: int = DEFAULT_MAX_BATCH, effects=()):
         n_traces = 2 * scene.n_objects
         if np.shape(observation.profile)[0] != n_traces:
             raise ValueError(f"observation has {np.shape(observation.profile)[0]} velocity traces, "
@@ -91,9 +94,10 @@ class Problem:
             raise ValueError(f"max_batch must be >= 1, got {max_batch}")
         self.scene = scene
         self.observation = observation
-        self.space = ParamSpace.from_scene(scene)
+        self.effects = scene_effects(scene, effects)
+        self.space = ParamSpace.from_scene(scene, self.effects)
         self.likelihood: Likelihood = make_likelihood(observation, likelihood, sd_model)
-        self.sim: Simulator = make_simulator(scene, float(observation.fps))
+        self.sim: Simulator = make_simulator(scene, float(observation.fps), self.effects)
         self.max_batch = int(max_batch)
         ft = np.asarray(observation.frame_times, np.float64)
         self.frame_times = jnp.asarray(ft, jnp.float32)
@@ -205,7 +209,7 @@ class Problem:
 
 def simulated_observation(scene: Scene, params: PhysParams, *, fps: float = 30.0, duration: float = 1.5,
                           position_sd: float | np.ndarray = 1e-3, release_time: float = 0.1,
-                          seed: int = 0, mask: np.ndarray | None = None) -> Observation:
+                          seed: int = 0, mask: np.ndarray | None = None, effects=()) -> Observation:
     """A synthetic :class:`Observation`: a rollout at ``params`` plus Gaussian position noise.
 
     For tests and benchmarks with known ground truth. Frame k is at k / fps, the objects are
@@ -221,11 +225,12 @@ def simulated_observation(scene: Scene, params: PhysParams, *, fps: float = 30.0
         release_time: release time in s.
         seed: NumPy seed of the noise.
         mask: optional (N - 1,) bool fit window (default: all samples).
+        effects: effects simulated on top of the scene's own (values in ``params.effects``).
 
     Returns:
         The observation; ``pixels`` are the positions times the camera scale (no roll).
     """
-    sim = make_simulator(scene, fps)
+    sim = make_simulator(scene, fps, scene_effects(scene, effects))
     n_frames = int(round(duration * fps)) + 1
     ft = np.arange(n_frames) / fps
     n = steps_needed(sim, ft[-1] - release_time)

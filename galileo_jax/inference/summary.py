@@ -63,6 +63,21 @@ def _draw_stats(x: np.ndarray, best: float | None, rhat: float, ess: float, **kw
                   rhat=float(rhat), ess_bulk=float(ess), **kw)
 
 
+def _effect_names(space: ParamSpace) -> list[str]:
+    return [n for n, k in zip(space.names, space.kinds) if k == "effect"]
+
+
+def _effect_note(name: str) -> str:
+    """"effect: meaning (unit)" for an effect parameter name."""
+    from galileo_jax.effects import available_effects
+
+    for e in available_effects().values():
+        for p in e.params:
+            if p.name == name:
+                return f"{e.name}: {p.doc}" + (f" ({p.unit})" if p.unit else "")
+    return ""
+
+
 def _known(value: float, **kw) -> dict:
     return _entry(mean=value, median=value, sd=0.0, interval90=[value, value], best=value, known=True, **kw)
 
@@ -127,6 +142,8 @@ def summarize_mh(result, space: ParamSpace, key: jax.Array | None = None) -> dic
         else:
             note = NOT_IDENTIFIABLE_ONE if space.n_objects == 1 else NOT_IDENTIFIABLE
             params[name] = _draw_stats(draws[name], None, rhat[name], ess[name], identifiable=False, note=note)
+    for name in _effect_names(space):
+        params[name] = _draw_stats(draws[name], draws[name][ibest], rhat[name], ess[name], note=_effect_note(name))
 
     sampled = [n for n, p in params.items() if p["identifiable"] and not p["known"]]
     diagnostics = {
@@ -183,6 +200,8 @@ def summarize_grad(result, space: ParamSpace) -> dict:
         else:
             note = NOT_IDENTIFIABLE_ONE if space.n_objects == 1 else NOT_IDENTIFIABLE.split(";")[0]
             params[name] = _entry(identifiable=False, note=note)
+    for name in _effect_names(space):
+        params[name] = {**est(name), "note": _effect_note(name)}
     diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
                    "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
                    "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s)}

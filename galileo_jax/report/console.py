@@ -29,7 +29,7 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
     for name, p in fit.parameters.items():
         interval = p.get("interval90")
         iv = f"[{_fmt(interval[0])}, {_fmt(interval[1])}]" if interval else "-"
-        note = NOTES.get(name, "")
+        note = NOTES.get(name, p.get("note", "") if p.get("identifiable", True) else "")
         if not p.get("identifiable", True):
             note = "NOT identifiable from the video (only phi is)"
         if p.get("known"):

@@ -1,0 +1,209 @@
+"""The shipped effects (registered on import). See :mod:`galileo_jax.effects.base` for the hooks.
+
+Every force law is per unit mass (an acceleration coefficient), because without a known mass
+the simulator's masses only carry the ratio phi: a drag coefficient in newtons would not be
+identifiable, its value per kilogram is.
+
+=================  ===================================================  ==================  =======
+effect             physics                                              parameter (unit)    neutral
+=================  ===================================================  ==================  =======
+quadratic_drag     F = -c m |v| v (Newton drag; c = rho C_d A / 2m)     drag_quadratic 1/m  0
+linear_drag        F = -b m v (Stokes / viscous drag)                   drag_linear 1/s     0
+restitution        bouncy object-object impacts, rebound ratio ~ e      restitution         0
+ramp_friction      friction on the ramp k + dk, on the floor k          dk_ramp             0
+initial_push       object 1 released at speed v0 down the slope         v0 m/s              0
+rolling            round objects roll: true radius, I = alpha m r^2     (none: structural)  -
+velocity_friction  k(v) = k + s |v| (velocity-strengthening friction)   dk_dv s/m           0
+=================  ===================================================  ==================  =======
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import mujoco
+
+from galileo_jax.effects.base import Effect, EffectParam, register_effect
+
+#: Contact time constant (s) of MuJoCo's default ``solref`` (kept by :data:`RESTITUTION`).
+SOLREF_TIMECONST = 0.02
+
+
+def _two_objects(scene) -> str | None:
+    return None if scene.n_objects == 2 else "it needs two objects that collide"
+
+
+def _on_ramp(scene) -> str | None:
+    return None if any(scene.placement(i) == "ramp" for i in range(scene.n_objects)) else "no object starts on the ramp"
+
+
+# ----------------------------------------------------------------------------- drag
+def _quadratic_force(state, values, ctx):
+    v = jnp.asarray(state.vel)
+    speed = jnp.sqrt(jnp.sum(v**2, axis=-1, keepdims=True) + 1e-12)
+    return -values[0] * jnp.asarray(state.mass)[:, None] * speed * v
+
+
+def _linear_force(state, values, ctx):
+    return -values[0] * jnp.asarray(state.mass)[:, None] * jnp.asarray(state.vel)
+
+
+QUADRATIC_DRAG = Effect(
+    name="quadratic_drag",
+    summary="air drag growing with the square of speed: F = -c m |v| v",
+    params=(EffectParam("drag_quadratic", "1/m", 0.0, 0.0, 5.0, 0.2, (1.5, 3.0),
+                        "drag deceleration per unit speed squared, c = rho C_d A / (2 m)"),),
+    evidence="the shape of the speed-time curve at high speed (a steeper ramp, a higher start or a longer run)",
+    source="Newton's drag law F = rho C_d A v^2 / 2 (e.g. Taylor, Classical Mechanics, 2.4)",
+    force=_quadratic_force,
+)
+
+LINEAR_DRAG = Effect(
+    name="linear_drag",
+    summary="viscous drag proportional to speed: F = -b m v",
+    params=(EffectParam("drag_linear", "1/s", 0.0, 0.0, 5.0, 0.2, (1.2, 2.5),
+                        "drag deceleration per unit speed (inverse relaxation time)"),),
+    evidence="the deceleration at low speed (a shallow ramp or the slow end of the run on the floor)",
+    source="Stokes' linear drag F = -b v (Taylor, Classical Mechanics, 2.2)",
+    force=_linear_force,
+)
+
+
+# ----------------------------------------------------------------------------- impacts
+def restitution_dampratio(e):
+    """Damping ratio zeta of a linear spring-damper contact with rebound ratio ``e``.
+
+    For a damped oscillator the velocity ratio over one half-period is
+    e = exp(-pi zeta / sqrt(1 - zeta^2)), so zeta = -ln e / sqrt(pi^2 + ln^2 e); e -> 0 gives
+    zeta = 1, MuJoCo's default (critically damped) ``solref`` (MuJoCo documentation,
+    "Solver parameters": solref = (timeconst, dampratio)). e is clipped to [1e-9, 0.99].
+    """
+    e = jnp.clip(e, 1e-9, 0.99)
+    le = jnp.log(e)
+    return jnp.where(e <= 1e-9, 1.0, -le / jnp.sqrt(math.pi**2 + le**2))
+
+
+def _restitution_model(fields, values, ctx):
+    zeta = restitution_dampratio(values[0])
+    sol = jnp.asarray(fields["pair_solref"])
+    row = jnp.stack([jnp.asarray(SOLREF_TIMECONST, sol.dtype), jnp.asarray(zeta, sol.dtype)])
+    return {"pair_solref": sol.at[ctx.object_pair].set(row)}
+
+
+RESTITUTION = Effect(
+    name="restitution",
+    summary="bouncy impacts between the objects: contact damping ratio from a rebound ratio e",
+    params=(EffectParam("restitution", "", 0.0, 0.0, 0.8, 0.3, (0.4, 0.65),
+                        "nominal coefficient of restitution of the object-object impact "
+                        "(bounded at 0.8: above ~0.7 float32 MJX and C MuJoCo impacts diverge)"),),
+    evidence="the speeds just after the collision (object 1 slowing more, object 2 leaving faster)",
+    source="linear spring-damper contact, MuJoCo solref (timeconst, dampratio); e = exp(-pi z / sqrt(1 - z^2))",
+    applies=_two_objects,
+    model=_restitution_model,
+)
+
+
+# ----------------------------------------------------------------------------- friction
+def _ramp_friction(k, state, values, ctx):
+    k = jnp.asarray(k)
+    return k.at[:, 0].set(jnp.maximum(k[:, 0] + values[0], 0.0))
+
+
+RAMP_FRICTION = Effect(
+    name="ramp_friction",
+    summary="the ramp's surface differs from the floor's: friction k + dk on the ramp, k on the floor",
+    params=(EffectParam("dk_ramp", "", 0.0, -0.3, 0.3, 0.03, (0.08, 0.15),
+                        "friction coefficient on the ramp minus that on the floor"),),
+    evidence="the acceleration on the ramp against the deceleration on the floor",
+    source="Coulomb friction with a surface-dependent coefficient",
+    applies=_on_ramp,
+    friction=_ramp_friction,
+)
+
+
+def _velocity_friction(k, state, values, ctx):
+    v = jnp.asarray(state.vel)
+    speed = jnp.sqrt(jnp.sum(v**2, axis=-1) + 1e-12)
+    return jnp.maximum(jnp.asarray(k) + values[0] * speed[:, None], 0.0)
+
+
+VELOCITY_FRICTION = Effect(
+    name="velocity_friction",
+    summary="friction that changes with sliding speed: k(v) = k + s |v|",
+    params=(EffectParam("dk_dv", "s/m", 0.0, -0.5, 0.5, 0.03, (0.2, 0.4),
+                        "change of the friction coefficient per m/s of sliding speed"),),
+    evidence="deceleration at different speeds scaled by the normal force (compare ramp and floor, or two ramp angles)",
+    source="rate-dependent friction, linearised (e.g. Persson, Sliding Friction, 2000, ch. 13)",
+    friction=_velocity_friction,
+)
+
+
+# ----------------------------------------------------------------------------- release
+def _initial_push(values, ctx):
+    v = jnp.zeros((ctx.n_objects, 3))
+    d = jnp.asarray(ctx.downhill) if ctx.on_ramp[0] else jnp.asarray([1.0, 0.0, 0.0])
+    return v.at[0].set(values[0] * d)
+
+
+INITIAL_PUSH = Effect(
+    name="initial_push",
+    summary="object 1 leaves the hand moving: released with speed v0 down the slope",
+    params=(EffectParam("v0", "m/s", 0.0, 0.0, 2.0, 0.1, (0.25, 0.5),
+                        "speed of object 1 along the slope at release"),),
+    evidence="the first frames after release (speed at t = 0)",
+    source="initial condition",
+    initial_velocity=_initial_push,
+)
+
+
+# ----------------------------------------------------------------------------- rolling
+def _rolling_applies(scene) -> str | None:
+    rolling = [i for i, o in enumerate(scene.objects) if o.rolling is not None]
+    if not rolling:
+        return "no object declares a round cross-section (objects[i].rolling: {radius, inertia_ratio})"
+    if scene.n_objects == 2:
+        return "MuJoCo-MJX cannot collide a rolling cylinder with a box; use a one-object scene"
+    return None
+
+
+def _rolling_build(spec, scene) -> None:
+    """Give each object with ``rolling`` its round shape: a cylinder across the slope (axis y),
+    radius r, length = the object's width, moment of inertia alpha m r^2 about its axis."""
+    s2 = math.sqrt(0.5)
+    for i, obj in enumerate(scene.objects):
+        if obj.rolling is None:
+            continue
+        r, alpha = obj.rolling.radius, obj.rolling.inertia_ratio
+        length = obj.size[1] if obj.shape == "box" else 2 * r
+        name = f"object{i + 1}"
+        geom = spec.geom(name)
+        geom.type = mujoco.mjtGeom.mjGEOM_CYLINDER
+        geom.size = [r, length / 2, 0.0]
+        geom.quat = [s2, s2, 0.0, 0.0]  # cylinder axis (local z) along the body's y axis
+        m = obj.mass or geom.mass
+        body = spec.body(name)
+        body.explicitinertial = True
+        body.mass = m
+        body.ipos = [0.0, 0.0, 0.0]
+        body.iquat = [1.0, 0.0, 0.0, 0.0]
+        i_axis = alpha * m * r**2
+        i_across = 0.5 * i_axis + m * length**2 / 12.0
+        body.inertia = [i_across, i_axis, i_across]
+
+
+ROLLING = Effect(
+    name="rolling",
+    summary="round objects roll instead of sliding: true radius and rotational inertia I = alpha m r^2",
+    evidence="the acceleration at several ramp angles: rolling without slipping gives a = g sin(theta) / (1 + alpha)",
+    source="rigid-body rolling with Coulomb friction (a = g sin / (1 + alpha) while the contact sticks)",
+    applies=_rolling_applies,
+    build=_rolling_build,
+)
+
+for _e in (QUADRATIC_DRAG, LINEAR_DRAG, RESTITUTION, RAMP_FRICTION, INITIAL_PUSH, ROLLING, VELOCITY_FRICTION):
+    register_effect(_e, replace=True)
+
+#: Names of the shipped effects, in the order above.
+SHIPPED = ("quadratic_drag", "linear_drag", "restitution", "ramp_friction", "initial_push", "rolling",
+           "velocity_friction")
