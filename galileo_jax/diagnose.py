@@ -73,9 +73,10 @@ def summary_text(diag, video: Path, elapsed: float | None = None) -> str:
     for rnd in diag.rounds:
         lines.append(f"  round {rnd['round']} (model: {rnd['base']}); threshold p < {rnd['threshold_p']:.3g}")
         if rnd["screen"]:
-            lines.append(f"    {'screen: effect':<26}{'score':>9}{'p':>10}{'step':>10}")
+            lines.append(f"    {'screen: effect':<26}{'score':>9}{'p':>10}{'grid gain':>11}{'at':>8}")
             for r in rnd["screen"]:
-                lines.append(f"    {r['effect']:<26}{r['statistic']:>9.1f}{r['p_value']:>10.2g}{r['step']:>10.3g}")
+                lines.append(f"    {r['effect']:<26}{r['score']:>9.1f}{r['p_value']:>10.2g}{r['grid_gain']:>11.1f}"
+                             f"{r['best_value']:>8.3g}")
         lines.append(f"    {'refit: effect':<26}{'dlogL':>9}{'p':>10}{'RMSE':>8}{'drop':>7}   estimate [90%]")
         for x in rnd["refits"]:
             est = "; ".join(f"{k} {v['mean']:.3g} [{v['interval90'][0]:.3g}, {v['interval90'][1]:.3g}]"

@@ -8,7 +8,9 @@
    (:mod:`galileo_jax.criticism`) and a one-line verdict.
 3. **Screen**: for every candidate effect with a parameter, the score statistic of
    :func:`~galileo_jax.inference.screen.score_test` (the residual projected on the effect's
-   sensitivity after projecting out the base parameters): one batched set of rollouts.
+   sensitivity after projecting out the base parameters) and a coarse profile over the
+   parameter's range with the same first-order re-adjustment (:func:`screen_candidates`):
+   one batched set of rollouts.
 4. **Refit** the ``refits`` best-scoring candidates (and every structural effect, which the
    screen cannot rank) from the base estimate plus the screen's linearised step.
 5. **Decide**: an effect is *supported* when its likelihood-ratio test against the current
@@ -47,7 +49,7 @@ from galileo_jax.effects import Effect, available_effects, resolve_effects
 from galileo_jax.effects.runtime import neutral_values
 from galileo_jax.inference.grad import GradResult, fit_grad
 from galileo_jax.inference.problem import Problem
-from galileo_jax.inference.screen import lr_pvalue, score_test, vuong_test
+from galileo_jax.inference.screen import lr_pvalue, project_out, score_test, vuong_test
 from galileo_jax.inference.summary import summarize_grad
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
 from galileo_jax.observation import Observation, profile_from_positions
@@ -195,12 +197,27 @@ def _poses(problem: Problem, theta) -> np.ndarray:
     return np.asarray(sample_poses(traj, jnp.asarray(obs.frame_times - obs.release_time, jnp.float32)))
 
 
-def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings) -> list[dict]:
-    """Score screen of the candidates with parameters at the current fit (one batched call).
+#: Fractions of a parameter's range at which the screen also evaluates each effect (a one-sided
+#: parameter from its neutral bound; a two-sided one on both sides of its neutral value).
+SCREEN_GRID = (0.05, 0.15, 0.4)
 
-    Returns one dict per candidate with a parameter: effect, parameter, statistic (predicted
-    gain in 2 log L), p_value, step (linearised estimate - neutral), identifiable; sorted by
-    statistic, largest first.
+
+def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings) -> list[dict]:
+    """Rank the candidates with parameters at the current fit, in one batched set of rollouts.
+
+    Two statistics per candidate parameter, both predicted gains in 2 log L after re-adjusting
+    the current model's parameters to first order (projecting the residual change on the
+    orthogonal complement of their Jacobian J):
+
+    * ``score``: the local score test at the neutral value (:func:`score_test`), calibrated
+      chi-square(1) but blind to effects that only show when large;
+    * ``grid``: |r0|^2 - min_b |r(eta) - J b|^2 at the values of :data:`SCREEN_GRID` across the
+      parameter's range (a coarse profile likelihood; large effects are not linear).
+
+    Candidates are ranked by the larger of the two (``statistic``); ``best_value`` is the grid
+    value with the largest gain, used to start the refit.
+
+    Returns one dict per candidate parameter, sorted by statistic, largest first.
     """
     with_params = [e for e in candidates if e.params]
     if not with_params:
@@ -211,40 +228,59 @@ def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings)
                       effects=tuple(current_effects) + tuple(with_params))
     space = problem.space
     d0 = current.problem.space.dim
-    theta0 = np.concatenate([np.asarray(current.result.theta, np.float64),
-                             neutral_values(with_params)])
+    theta0 = np.concatenate([np.asarray(current.result.theta, np.float64), neutral_values(with_params)])
     lo, hi = np.asarray(space.lower), np.asarray(space.upper)
     points, plan = [theta0], []
+
+    def add(point_values: dict) -> int:
+        p = theta0.copy()
+        for j, v in point_values.items():
+            p[j] = v
+        points.append(p)
+        return len(points) - 1
+
     for j in range(d0):  # central differences in the current model's parameters
         h = 0.01 * (hi[j] - lo[j])
-        for sgn in (1, -1):
-            p = theta0.copy(); p[j] += sgn * h; points.append(p)
-        plan.append(("base", j, h))
+        plan.append(("base", j, h, add({j: theta0[j] + h}), add({j: theta0[j] - h})))
     k = d0
     for e in with_params:
         for prm in e.params:
-            p = theta0.copy(); p[k] = prm.neutral + prm.screen_step; points.append(p)
-            if not prm.one_sided:
-                p = theta0.copy(); p[k] = prm.neutral - prm.screen_step; points.append(p)
-            plan.append((e.name, k, prm))
+            plus = add({k: prm.neutral + prm.screen_step})
+            minus = None if prm.one_sided else add({k: prm.neutral - prm.screen_step})
+            grid = []
+            for f in SCREEN_GRID:
+                if prm.one_sided:
+                    vals = [prm.lower + f * (prm.upper - prm.lower)]
+                else:
+                    vals = [prm.neutral + f * (prm.upper - prm.neutral), prm.neutral - f * (prm.neutral - prm.lower)]
+                grid += [(v, add({k: v})) for v in vals]
+            plan.append((e.name, prm, plus, minus, grid))
             k += 1
     res = np.asarray(problem.residuals(jnp.asarray(np.stack(points), jnp.float32)), np.float64)
     r0 = res[0]
-    jac, sens, one_sided, names, i = [], [], [], [], 1
-    for kind, j, info in plan:
-        if kind == "base":
-            jac.append((res[i] - res[i + 1]) / (2 * info)); i += 2
-        elif info.one_sided:
-            sens.append((res[i] - r0) / info.screen_step); i += 1
-            one_sided.append(True); names.append((kind, info.name))
+    jac = np.stack([(res[ip] - res[im]) / (2 * h) for kind, _, h, ip, im in plan if kind == "base"], axis=1)
+    cands = [x for x in plan if x[0] != "base"]
+    sens, one_sided = [], []
+    for name, prm, plus, minus, grid in cands:
+        if minus is None:
+            sens.append((res[plus] - r0) / prm.screen_step)
         else:
-            sens.append((res[i] - res[i + 1]) / (2 * info.screen_step)); i += 2
-            one_sided.append(False); names.append((kind, info.name))
-    score = score_test(r0, np.stack(jac, axis=1), np.stack(sens, axis=1), np.asarray(one_sided))
-    rows = [{"effect": en, "parameter": pn, "statistic": float(t), "p_value": float(p), "step": float(s),
-             "identifiable": bool(idf)}
-            for (en, pn), t, p, s, idf in zip(names, score.statistic, score.p_value, score.step, score.identifiable)]
-    # an effect with several parameters is ranked by its largest statistic
+            sens.append((res[plus] - res[minus]) / (2 * prm.screen_step))
+        one_sided.append(prm.one_sided)
+    score = score_test(r0, jac, np.stack(sens, axis=1), np.asarray(one_sided))
+    base_ss = float(np.sum(r0**2))
+    rows = []
+    for c, (name, prm, plus, minus, grid) in enumerate(cands):
+        gains = []
+        for v, ip in grid:
+            # first-order re-adjustment of the current parameters around r0: r(eta) - J b
+            dr = project_out(jac, (res[ip] - r0)[:, None])[:, 0]
+            gains.append((base_ss - float(np.sum((r0 + dr) ** 2)), v))
+        g_best, v_best = max(gains)
+        t = float(score.statistic[c])
+        rows.append({"effect": name, "parameter": prm.name, "statistic": max(t, g_best), "score": t,
+                     "p_value": float(score.p_value[c]), "step": float(score.step[c]), "grid_gain": g_best,
+                     "best_value": float(v_best), "identifiable": bool(score.identifiable[c])})
     return sorted(rows, key=lambda r: -r["statistic"])
 
 
@@ -252,7 +288,11 @@ def _refit_init(current: ModelFit, effect: Effect, screen_row: dict | None) -> n
     vals = []
     for prm in effect.params:
         span = prm.upper - prm.lower
-        v = prm.neutral + (screen_row["step"] if screen_row and screen_row["parameter"] == prm.name else prm.screen_step)
+        v = prm.neutral + prm.screen_step
+        if screen_row and screen_row["parameter"] == prm.name:
+            local = prm.neutral + screen_row["step"]
+            # start from the grid value when the coarse profile beats the local linear step
+            v = screen_row["best_value"] if screen_row["grid_gain"] > screen_row["score"] else local
         if prm.one_sided and v <= prm.neutral:
             v = prm.neutral + prm.screen_step
         vals.append(float(np.clip(v, prm.lower + 0.01 * span, prm.upper - 0.01 * span)))

@@ -152,3 +152,17 @@ def test_existing_result_is_not_half_overwritten(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's private 0600
+
+
+def test_effects_and_diagnose_bad_input(tmp_path):
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--effects", "quadratic_drug"),
+                          "unknown effect", "quadratic_drag")
+    assert_one_line_error(run_cli("galileo_jax.diagnose", str(tmp_path / "nope.mp4")), "not found")
+    assert_one_line_error(run_cli("galileo_jax.diagnose", str(EXAMPLE), "--effects", "rolling"),
+                          "none of the candidate effects")
+    assert_one_line_error(run_cli("galileo_jax.diagnose", str(EXAMPLE), "--refits", "-1"), "--refits")
+    listing = run_cli("galileo_jax.diagnose", "--list")
+    assert listing.returncode == 0
+    for name in ("quadratic_drag", "linear_drag", "restitution", "ramp_friction", "initial_push", "rolling",
+                 "velocity_friction"):
+        assert name in listing.stdout

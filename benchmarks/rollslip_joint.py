@@ -1,0 +1,367 @@
+"""Joint fits of the four real roll-slip clips: sliding block vs rolling cylinder, one friction.
+
+Usage: MUJOCO_GL=egl python benchmarks/rollslip_joint.py [--starts 3] [--screen 64] [--no-fine]
+
+A PVC pipe (outer radius 5.63 cm, inner 4.85 cm, 437 g) is released on one wooden board tilted
+10.3, 28.3, 42.4 and 65.1 degrees (../shared/data/real/rollslip_*.mp4, scenes/rollslip_*.yaml).
+Every clip is observed as ``fit`` does (``read_video(path, fps_override=scene.video.fps)``,
+``observe(clip, scene)``), then all four are fitted JOINTLY (one shared friction k1,
+:class:`~galileo_jax.inference.joint.JointProblem` + ``fit_grad``) with
+
+* (a) the base sliding-block model: k1 is an "apparent" sliding friction;
+* (b) ``effects=("rolling",)``: the pipe is a cylinder with I = 0.871 m r^2 and k1 = mu is the
+  pipe-board friction coefficient;
+* (c) as (b), with 32 physics substeps per frame (1/959 s) instead of 8 in the two steep clips:
+  a slipping cylinder hops off the board by up to ~6 mm at 8 substeps (MuJoCo contact
+  artefact, 1 mm at 32), which makes log L rough in mu at 65.1 degrees.
+
+Reported per model: the shared k1 with the Gauss-Newton 90% interval and the profile-likelihood
+set from a grid over k1, the joint log-likelihood, per-video RMSE against the tracking noise
+(velocity_sd), chi-square goodness of fit of the standardised residuals (sum r^2 against
+chi2(n), under the fit's likelihood = tracking noise + the 0.05 m/s model floor, and under the
+tracking noise alone), Delta log L between the models and Vuong's test for non-nested models;
+and single-video fits (per-angle k1 / mu) for both models. Writes
+benchmarks/results/rollslip_joint.{md,json}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from galileo_jax.inference.grad import fit_grad  # noqa: E402
+from galileo_jax.inference.joint import JointProblem  # noqa: E402
+from galileo_jax.inference.problem import Problem  # noqa: E402
+from galileo_jax.jaxcache import enable_compilation_cache  # noqa: E402
+from galileo_jax.likelihood import make_likelihood  # noqa: E402
+from galileo_jax.report.results import package_versions, to_jsonable  # noqa: E402
+from galileo_jax.scene import load_scene  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+ANGLES = ("10.3", "28.3", "42.4", "65.1")
+VIDEO_DIR = ROOT.parent / "shared" / "data" / "real"
+ALPHA = 0.871  # I / (m r^2) of the pipe
+PUBLISHED = (0.25, 0.30)
+GRID_STEP = 0.01
+HALF_CHI2_90 = 0.5 * stats.chi2.ppf(0.90, 1)  # profile-likelihood 90% set: log L >= max - 1.353
+
+
+def machine_info() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "system": f"{platform.system()} {platform.release()}",
+            "jax_backend": jax.default_backend(), "versions": package_versions()}
+
+
+def observe_all() -> tuple[dict, dict, float]:
+    from galileo_jax.observe import observe, read_video
+
+    t0 = time.perf_counter()
+    scenes, obs = {}, {}
+    for a in ANGLES:
+        scene = load_scene(ROOT / "scenes" / f"rollslip_{a}.yaml")
+        clip = read_video(VIDEO_DIR / f"rollslip_{a}.mp4", fps_override=scene.video.fps)
+        scenes[a], obs[a] = scene, observe(clip, scene, progress=False)
+    return scenes, obs, time.perf_counter() - t0
+
+
+def with_substeps(scene, n: int):
+    return scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"substeps": n})})
+
+
+def problems_for(scenes, obs, effects, fine_steep: bool = False) -> list[Problem]:
+    out = []
+    for a in ANGLES:
+        scene = with_substeps(scenes[a], 32) if fine_steep and a in ("42.4", "65.1") else scenes[a]
+        out.append(Problem(scene, obs[a], effects=effects))
+    return out
+
+
+def gof(jp: JointProblem, theta: np.ndarray) -> dict:
+    """Goodness of fit of a joint estimate: per-video and overall chi-square, RMSE, log L."""
+    r_all = np.asarray(jp.residuals(jnp.asarray(theta)), np.float64)
+    blocks = jp.split_residuals(r_all)
+    sims = [np.asarray(s, np.float64) for s in jp.simulate(jnp.asarray(theta))]
+    ll_video = jp.video_log_likelihoods(jnp.asarray(theta))
+    videos = []
+    ss_noise_total, n_total = 0.0, 0
+    for a, p, r, sim, ll in zip(ANGLES, jp.problems, blocks, sims, ll_video):
+        o = p.observation
+        m = np.asarray(o.mask, bool)
+        diff = (np.asarray(o.profile) - sim)[:, m]
+        rmse = np.sqrt(np.mean(diff**2, axis=1))
+        # tracking noise alone: exact MA(1) whitening, no model floor
+        lik0 = make_likelihood(o, "gaussian_ma1", 0.0)
+        r0 = np.asarray(lik0.residuals(jnp.asarray(sim, jnp.float32)), np.float64)
+        ss, n = float(np.sum(r**2)), int(r.size)
+        ss0 = float(np.sum(r0**2))
+        ss_noise_total += ss0
+        n_total += n
+        videos.append({
+            "angle_deg": float(a), "loglik": float(ll), "n": n, "sum_r2": ss, "chi2_p": float(stats.chi2.sf(ss, n)),
+            "sum_r2_noise_only": ss0, "chi2_p_noise_only": float(stats.chi2.sf(ss0, n)),
+            "rmse_x": float(rmse[0]), "rmse_y": float(rmse[1]),
+            "velocity_sd_x": float(o.velocity_sd[0]), "velocity_sd_y": float(o.velocity_sd[1]),
+            "rmse_over_sd": float(np.sqrt(np.mean((rmse / o.velocity_sd) ** 2))),
+        })
+    ss = float(np.sum(r_all**2))
+    df = int(r_all.size - jp.dim)
+    return {"videos": videos, "residuals": r_all, "overall": {
+        "n": int(r_all.size), "df": df, "sum_r2": ss, "chi2_p": float(stats.chi2.sf(ss, df)),
+        "sum_r2_noise_only": ss_noise_total, "chi2_p_noise_only": float(stats.chi2.sf(ss_noise_total, n_total - jp.dim)),
+        "loglik": float(np.sum(ll_video))}}
+
+
+def vuong(r_a: np.ndarray, r_b: np.ndarray) -> dict:
+    """Vuong (1989) test of model a against model b from pointwise log-likelihood ratios.
+
+    With the same Gaussian noise model the pointwise log-likelihood ratio is
+    l_i = (r_b,i^2 - r_a,i^2) / 2; Z = sum l / (sqrt(n) sd(l)) ~ N(0, 1) if the models fit
+    equally well; same number of parameters, so no correction term.
+    """
+    lr = 0.5 * (np.asarray(r_b) ** 2 - np.asarray(r_a) ** 2)
+    n = lr.size
+    z = float(lr.sum() / (math.sqrt(n) * lr.std(ddof=1)))
+    return {"sum_lr": float(lr.sum()), "n": int(n), "z": z, "p_one_sided": float(stats.norm.sf(z))}
+
+
+def profile_set(grid: np.ndarray, ll: np.ndarray) -> dict:
+    """Best grid value and the range of grid values with log L >= max - 1.353 (90% profile-likelihood set)."""
+    ok = np.flatnonzero(ll >= ll.max() - HALF_CHI2_90)
+    return {"best": float(grid[int(np.argmax(ll))]), "loglik_max": float(ll.max()),
+            "set90": [float(grid[ok].min()), float(grid[ok].max())]}
+
+
+def result_dict(res) -> dict:
+    return {"names": list(res.names), "theta": res.theta, "sd": res.sd, "interval90": res.interval90,
+            "loglik": res.loglik, "cost": res.cost, "iterations": res.iterations, "converged": res.converged,
+            "result": res.result, "starts_theta": res.starts_theta, "starts_cost": res.starts_cost,
+            "time_s": res.time_s}
+
+
+def run_model(label: str, probs: list[Problem], args, grid: np.ndarray) -> dict:
+    jp = JointProblem(probs)
+    t0 = time.perf_counter()
+    res = fit_grad(jp, jax.random.key(args.seed), n_starts=args.starts, n_screen=args.screen, max_steps=args.max_steps)
+    t_fit = time.perf_counter() - t0
+    g = gof(jp, res.theta)
+    t0 = time.perf_counter()
+    grid_ll = jp.video_log_likelihoods(jnp.asarray(grid[:, None], jnp.float32))  # (G, 4)
+    t_grid = time.perf_counter() - t0
+    n_res = g["overall"]["n"]
+    scale = math.sqrt(max(2.0 * res.cost / max(n_res - jp.dim, 1), 1.0))
+    out = {"label": label, "fit": result_dict(res), "gof": {k: v for k, v in g.items() if k != "residuals"},
+           "misfit_scale": scale, "grid": {"k1": grid, "video_loglik": grid_ll,
+                                           "profile": profile_set(grid, grid_ll.sum(1))},
+           "time_fit_s": t_fit, "time_grid_s": t_grid}
+    print(f"[{label}] k1 = {res.theta[0]:.4f} [{res.interval90[0, 0]:.4f}, {res.interval90[0, 1]:.4f}]  "
+          f"log L = {res.loglik:.1f}  chi2/df = {g['overall']['sum_r2'] / g['overall']['df']:.2f}  "
+          f"fit {t_fit:.0f} s, grid {t_grid:.0f} s", flush=True)
+    return out, g["residuals"]
+
+
+def single_fits(label: str, items, args, grid: np.ndarray) -> list[dict]:
+    """Single-video fits; ``items``: (video index, Problem, per-video log L on the grid)."""
+    rows = []
+    for j, p, grid_ll in items:
+        a = ANGLES[j]
+        t0 = time.perf_counter()
+        res = fit_grad(p, jax.random.key(args.seed + 1 + j), n_starts=args.single_starts, n_screen=args.screen,
+                       max_steps=args.max_steps)
+        rows.append({"angle_deg": float(a), "k1": float(res.theta[0]), "interval90": res.interval90[0],
+                     "loglik": res.loglik, "converged": res.converged, "time_s": time.perf_counter() - t0,
+                     "profile": profile_set(grid, np.asarray(grid_ll))})
+        print(f"[{label} single {a}] k1 = {res.theta[0]:.4f} [{res.interval90[0, 0]:.4f}, {res.interval90[0, 1]:.4f}] "
+              f"log L = {res.loglik:.1f} profile set {rows[-1]['profile']['set90']} ({rows[-1]['time_s']:.0f} s)", flush=True)
+    return rows
+
+
+def fmt_p(p: float) -> str:
+    return "<1e-300" if p == 0 else (f"{p:.2g}" if p < 0.01 else f"{p:.2f}")
+
+
+def write_md(path: Path, rep: dict) -> None:
+    models = rep["models"]
+    L = ["# Joint fit of the four real roll-slip clips: sliding block vs rolling cylinder", "",
+         f"Machine: {rep['machine']['cpu']}, {rep['machine']['cores']} cores (shared), {rep['machine']['system']}, "
+         f"JAX {rep['machine']['versions'].get('jax')} on {rep['machine']['jax_backend']}, "
+         f"MuJoCo {rep['machine']['versions'].get('mujoco')}, mujoco-mjx {rep['machine']['versions'].get('mujoco-mjx')}.",
+         f"Command: `MUJOCO_GL=egl python benchmarks/rollslip_joint.py {rep['argv']}`; total wall time "
+         f"{rep['time_total_s']:.0f} s (observing the clips {rep['time_observe_s']:.1f} s).", "",
+         "Clips ../shared/data/real/rollslip_*.mp4 (PVC pipe, r = 5.63 cm, I = 0.871 m r^2, on one board), "
+         "likelihood gaussian_iid with the 0.05 m/s model floor (the default), joint `fit_grad` "
+         f"({rep['settings']['starts']} screened starts of {rep['settings']['screen']}, FD Jacobian). "
+         "One shared k1 in every model.", "",
+         "## Joint fits", "",
+         "| model | shared k1 | GN 90% interval | profile-L 90% set (grid step 0.01) | log L | chi2 / df (p) | "
+         "chi2 noise-only / n (p) | fit time |",
+         "|---|---|---|---|---|---|---|---|"]
+    for m in models:
+        f, o = m["fit"], m["gof"]["overall"]
+        L.append(f"| {m['label']} | {f['theta'][0]:.3f} | [{f['interval90'][0][0]:.3f}, {f['interval90'][0][1]:.3f}] | "
+                 f"[{m['grid']['profile']['set90'][0]:.3f}, {m['grid']['profile']['set90'][1]:.3f}] | {f['loglik']:.1f} | "
+                 f"{o['sum_r2']:.0f} / {o['df']} ({fmt_p(o['chi2_p'])}) | "
+                 f"{o['sum_r2_noise_only']:.0f} / {o['n']} ({fmt_p(o['chi2_p_noise_only'])}) | {m['time_fit_s']:.0f} s |")
+    L += ["", "Per video at the joint estimate (RMSE in m/s of the x / y velocity traces against the tracking "
+          "noise velocity_sd; chi2 = sum of squared standardised residuals under the fit's likelihood, n samples):", "",
+          "| model | angle | log L | RMSE x / y | noise sd x / y | RMSE/sd | chi2 / n (p) | chi2 noise-only (p) |",
+          "|---|---|---|---|---|---|---|---|"]
+    for m in models:
+        for v in m["gof"]["videos"]:
+            L.append(f"| {m['label']} | {v['angle_deg']:g} | {v['loglik']:.1f} | {v['rmse_x']:.3f} / {v['rmse_y']:.3f} | "
+                     f"{v['velocity_sd_x']:.3f} / {v['velocity_sd_y']:.3f} | {v['rmse_over_sd']:.2f} | "
+                     f"{v['sum_r2']:.0f} / {v['n']} ({fmt_p(v['chi2_p'])}) | {v['sum_r2_noise_only']:.0f} ({fmt_p(v['chi2_p_noise_only'])}) |")
+    vu = rep["comparison"]
+    L += ["", "## Sliding vs rolling", "",
+          f"Delta log L (rolling - sliding, same data, one parameter each) = {vu['delta_loglik']:.1f} nats "
+          f"(per video: {', '.join(f'{d:+.1f}' for d in vu['delta_loglik_per_video'])}). "
+          f"Vuong test (non-nested, pointwise log-likelihood ratios, n = {vu['vuong']['n']}): Z = {vu['vuong']['z']:.1f}, "
+          f"one-sided p = {fmt_p(vu['vuong']['p_one_sided'])}. The residuals are serially correlated (the misfit is a "
+          "smooth curve), so the effective n is smaller than the sample count and Z is optimistic; the per-video "
+          "log L differences tell the same story without that assumption.", "",
+          "## Single-video fits", "",
+          "| angle | sliding: apparent k1 (GN 90%) | rolling: mu (GN 90%) | rolling: profile-L 90% set | "
+          "rolling without slipping needs mu >= tan / (1 + 1/alpha) | log L sliding / rolling |",
+          "|---|---|---|---|---|---|"]
+    for s, r in zip(rep["single"]["sliding"], rep["single"]["rolling"]):
+        bound = math.tan(math.radians(s["angle_deg"])) / (1 + 1 / ALPHA)
+        L.append(f"| {s['angle_deg']:g} | {s['k1']:.3f} [{s['interval90'][0]:.3f}, {s['interval90'][1]:.3f}] | "
+                 f"{r['k1']:.3f} [{r['interval90'][0]:.3f}, {r['interval90'][1]:.3f}] | "
+                 f"[{r['profile']['set90'][0]:.3f}, {r['profile']['set90'][1]:.3f}] | {bound:.3f} | "
+                 f"{s['loglik']:.1f} / {r['loglik']:.1f} |")
+    if rep["single"].get("rolling_fine"):
+        L += ["", "Rolling, 32 substeps in the steep clips (model c):", ""]
+        for r in rep["single"]["rolling_fine"]:
+            L.append(f"- {r['angle_deg']:g} deg: mu = {r['k1']:.3f} [{r['interval90'][0]:.3f}, {r['interval90'][1]:.3f}], "
+                     f"profile-L set [{r['profile']['set90'][0]:.3f}, {r['profile']['set90'][1]:.3f}]")
+    L += ["", "## Log-likelihood against the shared friction (grid)", "",
+          "Joint log L minus its grid maximum, per model, at a few values (full per-video curves in the JSON):", "",
+          "| k1 | " + " | ".join(m["label"] for m in models) + " |", "|---|" + "---|" * len(models)]
+    for k in rep["grid_rows"]:
+        cells = []
+        for m in models:
+            g = np.asarray(m["grid"]["k1"])
+            ll = np.asarray(m["grid"]["video_loglik"]).sum(1)
+            i = int(np.argmin(np.abs(g - k)))
+            cells.append(f"{ll[i] - ll.max():.1f}")
+        L.append(f"| {k:.3f} | " + " | ".join(cells) + " |")
+    L += ["", "## Verdict", "", *rep["verdict"], ""]
+    path.write_text("\n".join(L) + "\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--starts", type=int, default=3, help="LM starts of the joint fits")
+    ap.add_argument("--single-starts", type=int, default=2, help="LM starts of the single-video fits")
+    ap.add_argument("--screen", type=int, default=64, help="screened Latin-hypercube points")
+    ap.add_argument("--max-steps", type=int, default=40)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-fine", action="store_true", help="skip model (c) (32 substeps in the steep clips)")
+    ap.add_argument("--no-single", action="store_true", help="skip the single-video fits")
+    args = ap.parse_args()
+    import sys
+
+    enable_compilation_cache()
+    t_start = time.perf_counter()
+    scenes, obs, t_obs = observe_all()
+    for a in ANGLES:
+        o = obs[a]
+        print(f"clip {a}: {len(o.frame_times)} frames, release {o.release_time:.3f} s, {int(o.mask.sum())} samples, "
+              f"velocity_sd {np.round(o.velocity_sd, 3)} m/s", flush=True)
+    grid = np.round(np.arange(0.05, 0.6001, GRID_STEP), 4)  # 56 points: one vmapped batch
+    specs = [("sliding", (), False), ("rolling", ("rolling",), False)]
+    if not args.no_fine:
+        specs.append(("rolling, 32 substeps at 42.4/65.1", ("rolling",), True))
+    models, residuals, probs_by = [], {}, {}
+    for label, eff, fine in specs:
+        probs = problems_for(scenes, obs, eff, fine)
+        probs_by[label] = probs
+        m, r = run_model(label, probs, args, grid)
+        models.append(m)
+        residuals[label] = r
+
+    ll_s = np.asarray([v["loglik"] for v in models[0]["gof"]["videos"]])
+    ll_r = np.asarray([v["loglik"] for v in models[1]["gof"]["videos"]])
+    comparison = {"delta_loglik": float(models[1]["fit"]["loglik"] - models[0]["fit"]["loglik"]),
+                  "delta_loglik_per_video": ll_r - ll_s, "vuong": vuong(residuals["rolling"], residuals["sliding"])}
+    print(f"Delta log L (rolling - sliding) = {comparison['delta_loglik']:.1f}; Vuong Z = {comparison['vuong']['z']:.1f}",
+          flush=True)
+
+    single = {}
+    if not args.no_single:
+        for m, key in zip(models, ("sliding", "rolling", "rolling_fine")):
+            probs = probs_by[m["label"]]
+            gl = np.asarray(m["grid"]["video_loglik"])
+            idx = [ANGLES.index("42.4"), ANGLES.index("65.1")] if key == "rolling_fine" else range(len(ANGLES))
+            single[key] = single_fits(m["label"], [(j, probs[j], gl[:, j]) for j in idx], args, grid)
+
+    slid, roll = models[0], models[1]
+    mu = roll["fit"]["theta"][0]
+    mu_set = roll["grid"]["profile"]["set90"]
+    o_s, o_r = slid["gof"]["overall"], roll["gof"]["overall"]
+    pub_ll = []
+    g = np.asarray(roll["grid"]["k1"])
+    llg = np.asarray(roll["grid"]["video_loglik"]).sum(1)
+    for k in PUBLISHED:
+        pub_ll.append(float(llg[int(np.argmin(np.abs(g - k)))] - llg.max()))
+    verdict = [
+        f"- Sliding block, one k1 for all four clips: k1 = {slid['fit']['theta'][0]:.3f}, chi2 = {o_s['sum_r2']:.0f} on "
+        f"{o_s['df']} df (p = {fmt_p(o_s['chi2_p'])}): REJECTED; the per-angle apparent frictions differ "
+        "(single-video table) and no single value fits.",
+        f"- Rolling cylinder, one mu: mu = {mu:.3f} (GN 90% [{roll['fit']['interval90'][0][0]:.3f}, "
+        f"{roll['fit']['interval90'][0][1]:.3f}], profile-likelihood set [{mu_set[0]:.3f}, {mu_set[1]:.3f}]), "
+        f"chi2 = {o_r['sum_r2']:.0f} on {o_r['df']} df (p = {fmt_p(o_r['chi2_p'])}). "
+        + ("Not rejected at the 5% level." if o_r["chi2_p"] > 0.05 else
+           "Formally rejected too under the fit's noise model (tracking noise + 0.05 m/s floor), but it improves "
+           f"log L by {comparison['delta_loglik']:.0f} nats with the same number of parameters; see the per-video "
+           "table for where the remaining misfit is."),
+        f"- Published pipe-on-board mu 0.25-0.30: the data say mu = {mu:.2f}, above that range. At mu = 0.25 / 0.30 the "
+        f"joint log L is {pub_ll[0]:.0f} / {pub_ll[1]:.0f} nats below the best: the 42.4 degree clip would then roll "
+        "AND slip (it slips once tan(theta) > mu (1 + 1/alpha), i.e. mu < 0.425 at 42.4 degrees) and accelerate faster "
+        "than observed. The 10.3 and 28.3 degree clips roll without slipping for any mu above 0.085 / 0.251 and say "
+        "nothing more about mu; the estimate comes from 42.4 (a lower bound, mu >= ~0.43) and 65.1 (rolls and slips).",
+    ]
+    if len(models) > 2:
+        f = models[2]
+        verdict.append(f"- With 32 substeps in the steep clips (model c) mu = {f['fit']['theta'][0]:.3f} "
+                       f"(profile set [{f['grid']['profile']['set90'][0]:.3f}, {f['grid']['profile']['set90'][1]:.3f}]), "
+                       f"log L {f['fit']['loglik']:.1f}: the timestep moves mu by "
+                       f"{f['fit']['theta'][0] - mu:+.3f}, a systematic uncertainty larger than the GN interval.")
+    rep = {"machine": machine_info(), "argv": " ".join(sys.argv[1:]),
+           "settings": {"starts": args.starts, "single_starts": args.single_starts, "screen": args.screen,
+                        "max_steps": args.max_steps, "seed": args.seed, "likelihood": "gaussian_iid",
+                        "sd_model": 0.05, "alpha": ALPHA},
+           "observations": {a: {"n_frames": int(len(obs[a].frame_times)), "release_time_s": obs[a].release_time,
+                                "fit_samples": int(obs[a].mask.sum()), "velocity_sd": obs[a].velocity_sd}
+                            for a in ANGLES},
+           "models": models, "comparison": comparison, "single": single, "verdict": verdict,
+           "grid_rows": [0.25, 0.30, 0.35, 0.40, 0.42, 0.43, 0.44, 0.45, 0.46, 0.48, 0.50],
+           "time_observe_s": t_obs, "time_total_s": time.perf_counter() - t_start}
+    res_dir = ROOT / "benchmarks" / "results"
+    res_dir.mkdir(parents=True, exist_ok=True)
+    (res_dir / "rollslip_joint.json").write_text(json.dumps(to_jsonable(rep), indent=1))
+    write_md(res_dir / "rollslip_joint.md", json.loads(json.dumps(to_jsonable(rep))))
+    print()
+    print((res_dir / "rollslip_joint.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
