@@ -112,7 +112,7 @@ def main(argv=None) -> int:
             print(f"{effect} #{i}: {rec['decision']} ({rec['diagnose_s']:.0f} s)", flush=True)
             for ext in (".mp4",):
                 (work / f"{effect}_{i}{ext}").unlink(missing_ok=True)
-    records = [json.loads(p.read_text()) for p in sorted(work.glob("*.json"))]
+    records = [json.loads(p.read_text()) for p in sorted(work.glob("*.json")) if not p.name.endswith(".truth.json")]
     summary = summarize(records)
     machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}"
     (RESULTS / "diagnose_calibration.json").write_text(json.dumps({"machine": machine, "summary": summary,
