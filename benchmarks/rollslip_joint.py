@@ -141,9 +141,9 @@ def gof(jp: JointProblem, theta: np.ndarray) -> dict:
         t_mid = (0.5 * (o.frame_times[:-1] + o.frame_times[1:]))[m]
         v_obs = (np.asarray(o.profile)[0] * math.cos(th) - np.asarray(o.profile)[1] * math.sin(th))[m]
         v_sim = (sim[0] * math.cos(th) - sim[1] * math.sin(th))[m]
-        sel = v_sim > 0.05
-        a_obs = float(np.polyfit(t_mid[sel], v_obs[sel], 1)[0])
-        a_sim = float(np.polyfit(t_mid[sel], v_sim[sel], 1)[0])
+        sel = (v_obs > 0.05) | (v_sim > 0.05)
+        a_obs = float(np.polyfit(t_mid[sel], v_obs[sel], 1)[0]) if sel.sum() > 2 else float("nan")
+        a_sim = float(np.polyfit(t_mid[sel], v_sim[sel], 1)[0]) if sel.sum() > 2 else float("nan")
         ss_noise_total += ss0
         n_total += n
         videos.append({
@@ -253,7 +253,7 @@ def write_md(path: Path, rep: dict) -> None:
         extra = "".join(f"; {n} = {t:.3f} [{i[0]:.3f}, {i[1]:.3f}]" for n, t, i in
                         zip(f["names"][1:], f["theta"][1:], f["interval90"][1:]))
         L.append(f"| {m['label']} | {f['theta'][0]:.3f}{extra} | [{f['interval90'][0][0]:.3f}, {f['interval90'][0][1]:.3f}] | "
-                 f"[{m['grid']['profile']['set90'][0]:.3f}, {m['grid']['profile']['set90'][1]:.3f}] | {f['loglik']:.1f} | "
+                 f"{_set_text(m['grid']['profile'])} | {f['loglik']:.1f} | "
                  f"{o['sum_r2']:.0f} / {o['df']} ({fmt_p(o['chi2_p'])}) | "
                  f"{o['sum_r2_noise_only']:.0f} / {o['n']} ({fmt_p(o['chi2_p_noise_only'])}) | {m['time_fit_s']:.0f} s |")
     L += ["", "Per video at the joint estimate (RMSE in m/s of the x / y velocity traces against the tracking "
@@ -283,13 +283,13 @@ def write_md(path: Path, rep: dict) -> None:
         bound = math.tan(math.radians(s["angle_deg"])) / (1 + 1 / ALPHA)
         L.append(f"| {s['angle_deg']:g} | {s['k1']:.3f} [{s['interval90'][0]:.3f}, {s['interval90'][1]:.3f}] | "
                  f"{r['k1']:.3f} [{r['interval90'][0]:.3f}, {r['interval90'][1]:.3f}] | "
-                 f"[{r['profile']['set90'][0]:.3f}, {r['profile']['set90'][1]:.3f}] | {bound:.3f} | "
+                 f"{_set_text(r['profile'])} | {bound:.3f} | "
                  f"{s['loglik']:.1f} / {r['loglik']:.1f} |")
     if rep["single"].get("rolling_fine"):
         L += ["", "Rolling, 32 substeps in the steep clips (model c):", ""]
         for r in rep["single"]["rolling_fine"]:
             L.append(f"- {r['angle_deg']:g} deg: mu = {r['k1']:.3f} [{r['interval90'][0]:.3f}, {r['interval90'][1]:.3f}], "
-                     f"profile-L set [{r['profile']['set90'][0]:.3f}, {r['profile']['set90'][1]:.3f}]")
+                     f"profile-L set {_set_text(r['profile'])}")
     L += ["", "## Log-likelihood against the shared friction (grid)", "",
           "Joint log L minus its grid maximum, per model, at a few values (full per-video curves in the JSON; "
           "for (d) a slice along mu at the estimated c_rr):", "",
@@ -314,9 +314,73 @@ def write_md(path: Path, rep: dict) -> None:
           "(the slipping cylinder hops), so the grid rows and the substep comparison are the honest uncertainty.",
           "- Single-video rolling fits at 10.3 and 28.3 deg: the pipe rolls without slipping for every mu above "
           "tan(theta) / (1 + 1/alpha), so those clips only bound mu from below; their GN 'interval' covers the prior.",
+          "- Times: wall time per fit including tracing and compilation, here with JAX's persistent compilation "
+          "cache warm from an earlier identical run; that earlier run (cache mostly cold) took 103 / 96 / 112 s for "
+          "the joint fits (a) / (b) / (c), 39-47 s per single-video fit and 946 s in all (without model d).",
           "- Acceleration column: least-squares slope of the along-slope velocity over the moving samples; a deficit at "
           "low angles that ideal rolling cannot produce is what model (d) tests.", ""]
     path.write_text("\n".join(L) + "\n")
+
+
+def _set_text(prof: dict) -> str:
+    lo, hi = prof["set90"]
+    if lo == hi:
+        return f"{lo:.2f} only"
+    return f"[{lo:.2f}, {hi:.2f}]" + (" (to the grid's end: unbounded above)" if hi >= 0.6 - 1e-9 else "")
+
+
+def verdict_lines(rep: dict) -> list[str]:
+    """The plain-language conclusions, from the (JSON) report."""
+    models, comparison = rep["models"], rep["comparison"]
+    slid, roll = models[0], models[1]
+    mu = roll["fit"]["theta"][0]
+    o_s, o_r = slid["gof"]["overall"], roll["gof"]["overall"]
+    g = np.asarray(roll["grid"]["k1"])
+    llg = np.asarray(roll["grid"]["video_loglik"]).sum(1)
+    pub_ll = [float(llg[int(np.argmin(np.abs(g - k)))] - llg.max()) for k in PUBLISHED]
+    per_video = ", ".join(f"{v['angle_deg']:g} deg p = {fmt_p(v['chi2_p'])}" for v in roll["gof"]["videos"])
+    acc = "; ".join(f"{v['angle_deg']:g} deg {v['accel_obs']:.2f} observed vs {v['accel_sim']:.2f} simulated"
+                    for v in roll["gof"]["videos"][:2])
+    out = [
+        f"- Sliding block, one k1 for all four clips: k1 = {slid['fit']['theta'][0]:.3f}, chi2 = {o_s['sum_r2']:.0f} on "
+        f"{o_s['df']} df (p = {fmt_p(o_s['chi2_p'])}): REJECTED. The per-angle apparent frictions (single-video "
+        "table) differ by far more than their intervals, and the best compromise leaves the 10.3 deg pipe at rest.",
+        f"- Rolling cylinder, one mu: mu = {mu:.3f} (GN 90% [{roll['fit']['interval90'][0][0]:.3f}, "
+        f"{roll['fit']['interval90'][0][1]:.3f}]), log L higher by {comparison['delta_loglik']:.0f} nats with the same "
+        f"single parameter (Vuong Z = {comparison['vuong']['z']:.1f}), chi2 = {o_r['sum_r2']:.0f} on {o_r['df']} df "
+        f"(p = {fmt_p(o_r['chi2_p'])}). "
+        + ("Not rejected at the 5% level." if o_r["chi2_p"] > 0.05 else
+           "So the rolling fit is NOT rejected in comparison (it is overwhelmingly preferred and fits the 42.4 deg "
+           "clip within noise), but in absolute terms it is still rejected at the 5% level under the fit's noise "
+           f"model: per video {per_video}. The low-angle misfit is an acceleration deficit that ideal rolling cannot "
+           f"give ({acc} m/s^2), and the 65.1 deg misfit shrinks with a smaller timestep (model c)."),
+        f"- Published pipe-on-board mu 0.25-0.30: the data say mu ~ {mu:.2f}, above that range. At mu = 0.25 / 0.30 the "
+        f"joint log L is {pub_ll[0]:.0f} / {pub_ll[1]:.0f} nats below the best: the 42.4 deg clip would then roll AND "
+        "slip (it slips once tan(theta) > mu (1 + 1/alpha), i.e. mu < 0.425 at 42.4 deg) and accelerate faster than "
+        "observed (3.5 m/s^2 observed = rolling without slipping). The 10.3 and 28.3 deg clips roll without slipping "
+        "for any mu above 0.085 / 0.251 and say nothing more about mu; mu comes from 42.4 deg (a lower bound, "
+        "mu >= ~0.43) and 65.1 deg (rolls and slips).",
+    ]
+    if len(models) > 2:
+        f = models[2]
+        out.append(f"- With 32 substeps in the steep clips (model c): mu = {f['fit']['theta'][0]:.3f} "
+                   f"(GN 90% [{f['fit']['interval90'][0][0]:.3f}, {f['fit']['interval90'][0][1]:.3f}]), log L "
+                   f"{f['fit']['loglik']:.1f}. The timestep moves mu by {f['fit']['theta'][0] - mu:+.3f}, more than "
+                   "the GN interval at 8 substeps: treat mu = 0.45-0.48 as the answer, its uncertainty dominated by "
+                   "the simulator (the slipping cylinder hops at 8 substeps), not by the data.")
+    if len(models) > 3:
+        d = models[3]
+        c = dict(zip(d["fit"]["names"], d["fit"]["theta"]))
+        ci = dict(zip(d["fit"]["names"], d["fit"]["interval90"]))
+        pv = ", ".join(f"{v['angle_deg']:g} deg p = {fmt_p(v['chi2_p'])}" for v in d["gof"]["videos"])
+        out.append(f"- Diagnostic (d), adding a resistance force c_rr m g cos(theta) at the centre: mu = {c['k1']:.3f}, "
+                   f"c_rr = {c['c_rr']:.4f} [{ci['c_rr'][0]:.4f}, {ci['c_rr'][1]:.4f}], log L {d['fit']['loglik']:.1f} "
+                   f"(2 Delta log L = {comparison['resistance_lr']['lr']:.1f} against (c), boundary p = "
+                   f"{fmt_p(comparison['resistance_lr']['p'])}); chi2 = {d['gof']['overall']['sum_r2']:.0f} on "
+                   f"{d['gof']['overall']['df']} df (p = {fmt_p(d['gof']['overall']['chi2_p'])}; {pv}). A small "
+                   "rolling-resistance-like loss explains most of the low-angle deficit and leaves mu where it was. "
+                   "Not a library effect: a pointer, not a result.")
+    return out
 
 
 def main() -> None:
@@ -329,8 +393,18 @@ def main() -> None:
     ap.add_argument("--no-fine", action="store_true", help="skip model (c) (32 substeps in the steep clips)")
     ap.add_argument("--no-resistance", action="store_true", help="skip the diagnostic model (d)")
     ap.add_argument("--no-single", action="store_true", help="skip the single-video fits")
+    ap.add_argument("--render-only", action="store_true", help="rewrite the .md from the saved .json (no fits)")
     args = ap.parse_args()
     import sys
+
+    res_json = ROOT / "benchmarks" / "results" / "rollslip_joint.json"
+    if args.render_only:
+        rep = json.loads(res_json.read_text())
+        rep["verdict"] = verdict_lines(rep)
+        res_json.write_text(json.dumps(rep, indent=1))
+        write_md(res_json.with_suffix(".md"), rep)
+        print(res_json.with_suffix(".md").read_text())
+        return
 
     enable_compilation_cache()
     t_start = time.perf_counter()
@@ -374,62 +448,22 @@ def main() -> None:
             idx = [ANGLES.index("42.4"), ANGLES.index("65.1")] if key == "rolling_fine" else range(len(ANGLES))
             single[key] = single_fits(m["label"], [(j, probs[j], gl[:, j]) for j in idx], args, grid)
 
-    slid, roll = models[0], models[1]
-    mu = roll["fit"]["theta"][0]
-    mu_set = roll["grid"]["profile"]["set90"]
-    o_s, o_r = slid["gof"]["overall"], roll["gof"]["overall"]
-    pub_ll = []
-    g = np.asarray(roll["grid"]["k1"])
-    llg = np.asarray(roll["grid"]["video_loglik"]).sum(1)
-    for k in PUBLISHED:
-        pub_ll.append(float(llg[int(np.argmin(np.abs(g - k)))] - llg.max()))
-    verdict = [
-        f"- Sliding block, one k1 for all four clips: k1 = {slid['fit']['theta'][0]:.3f}, chi2 = {o_s['sum_r2']:.0f} on "
-        f"{o_s['df']} df (p = {fmt_p(o_s['chi2_p'])}): REJECTED; the per-angle apparent frictions differ "
-        "(single-video table) and no single value fits.",
-        f"- Rolling cylinder, one mu: mu = {mu:.3f} (GN 90% [{roll['fit']['interval90'][0][0]:.3f}, "
-        f"{roll['fit']['interval90'][0][1]:.3f}], profile-likelihood set [{mu_set[0]:.3f}, {mu_set[1]:.3f}]), "
-        f"chi2 = {o_r['sum_r2']:.0f} on {o_r['df']} df (p = {fmt_p(o_r['chi2_p'])}). "
-        + ("Not rejected at the 5% level." if o_r["chi2_p"] > 0.05 else
-           "Formally rejected too under the fit's noise model (tracking noise + 0.05 m/s floor), but it improves "
-           f"log L by {comparison['delta_loglik']:.0f} nats with the same number of parameters; see the per-video "
-           "table for where the remaining misfit is."),
-        f"- Published pipe-on-board mu 0.25-0.30: the data say mu = {mu:.2f}, above that range. At mu = 0.25 / 0.30 the "
-        f"joint log L is {pub_ll[0]:.0f} / {pub_ll[1]:.0f} nats below the best: the 42.4 degree clip would then roll "
-        "AND slip (it slips once tan(theta) > mu (1 + 1/alpha), i.e. mu < 0.425 at 42.4 degrees) and accelerate faster "
-        "than observed. The 10.3 and 28.3 degree clips roll without slipping for any mu above 0.085 / 0.251 and say "
-        "nothing more about mu; the estimate comes from 42.4 (a lower bound, mu >= ~0.43) and 65.1 (rolls and slips).",
-    ]
-    if len(models) > 2:
-        f = models[2]
-        verdict.append(f"- With 32 substeps in the steep clips (model c) mu = {f['fit']['theta'][0]:.3f} "
-                       f"(profile set [{f['grid']['profile']['set90'][0]:.3f}, {f['grid']['profile']['set90'][1]:.3f}]), "
-                       f"log L {f['fit']['loglik']:.1f}: the timestep moves mu by "
-                       f"{f['fit']['theta'][0] - mu:+.3f}, a systematic uncertainty larger than the GN interval.")
-    if len(models) > 3:
-        d = models[3]
-        c = dict(zip(d["fit"]["names"], d["fit"]["theta"]))
-        ci = dict(zip(d["fit"]["names"], d["fit"]["interval90"]))
-        verdict.append(f"- Diagnostic (d), adding a resistance force c_rr m g cos(theta): mu = {c['k1']:.3f}, c_rr = "
-                       f"{c['c_rr']:.4f} [{ci['c_rr'][0]:.4f}, {ci['c_rr'][1]:.4f}], log L {d['fit']['loglik']:.1f} "
-                       f"(2 Delta log L = {comparison['resistance_lr']['lr']:.1f} against (c), boundary p = "
-                       f"{fmt_p(comparison['resistance_lr']['p'])}); chi2 = {d['gof']['overall']['sum_r2']:.0f} on "
-                       f"{d['gof']['overall']['df']} df (p = {fmt_p(d['gof']['overall']['chi2_p'])}). Not a library "
-                       "effect; a pointer for what the rolling model still misses.")
     rep = {"machine": machine_info(), "argv": " ".join(sys.argv[1:]),
            "settings": {"starts": args.starts, "single_starts": args.single_starts, "screen": args.screen,
                         "max_steps": args.max_steps, "seed": args.seed, "likelihood": "gaussian_iid",
                         "sd_model": 0.05, "alpha": ALPHA},
-           "observations": {a: {"n_frames": int(len(obs[a].frame_times)), "release_time_s": obs[a].release_time,
+           "observations": {a: {"n_frames": len(obs[a].frame_times), "release_time_s": obs[a].release_time,
                                 "fit_samples": int(obs[a].mask.sum()), "velocity_sd": obs[a].velocity_sd}
                             for a in ANGLES},
-           "models": models, "comparison": comparison, "single": single, "verdict": verdict,
+           "models": models, "comparison": comparison, "single": single,
            "grid_rows": [0.25, 0.30, 0.35, 0.40, 0.42, 0.43, 0.44, 0.45, 0.46, 0.48, 0.50],
            "time_observe_s": t_obs, "time_total_s": time.perf_counter() - t_start}
     res_dir = ROOT / "benchmarks" / "results"
     res_dir.mkdir(parents=True, exist_ok=True)
-    (res_dir / "rollslip_joint.json").write_text(json.dumps(to_jsonable(rep), indent=1))
-    write_md(res_dir / "rollslip_joint.md", json.loads(json.dumps(to_jsonable(rep))))
+    rep = json.loads(json.dumps(to_jsonable(rep)))
+    rep["verdict"] = verdict_lines(rep)
+    (res_dir / "rollslip_joint.json").write_text(json.dumps(rep, indent=1))
+    write_md(res_dir / "rollslip_joint.md", rep)
     print()
     print((res_dir / "rollslip_joint.md").read_text())
 

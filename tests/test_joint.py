@@ -106,9 +106,14 @@ def test_per_video_parameters_get_one_copy_per_video(problems):
     z = jnp.array([0.3, -1.0, 2.0, 0.1])
     assert np.allclose(jp2.theta_for(1, jp2.space.from_unconstrained(z)),
                        probs[1].space.from_unconstrained(jp2.theta_for(1, z)))
+    one = JointProblem(probs[:1])  # one video: the joint space is the video's own
+    z1 = jnp.array([[0.3, -1.0], [1.2, 0.4]])
+    assert one.names == ("k1", "v0@0")
+    assert np.allclose(one.space.log_prior(z1), probs[0].space.log_prior(z1))
+    assert np.allclose(one.space.dtheta_dz(z1), probs[0].space.dtheta_dz(z1))
     with pytest.raises(ValueError, match="per_video"):
         JointProblem(probs, per_video=["k3"])
-    with pytest.raises(ValueError, match="Problem"):
+    with pytest.raises(TypeError, match="Problem"):
         JointProblem([probs[0], "video.mp4"])
     with pytest.raises(ValueError, match="at least one"):
         JointProblem([])

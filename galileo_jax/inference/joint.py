@@ -32,8 +32,8 @@ methods ARE ParamSpace's (borrowed functions that only read ``names``/``lower``/
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -87,7 +87,7 @@ class JointSpace:
     as_dict = ParamSpace.as_dict
 
     @classmethod
-    def from_spaces(cls, spaces: Sequence[ParamSpace], per_video: Iterable[str] = ()) -> "JointSpace":
+    def from_spaces(cls, spaces: Sequence[ParamSpace], per_video: Iterable[str] = ()) -> JointSpace:
         """Joint space of ``spaces`` with the names in ``per_video`` (plus :data:`DEFAULT_PER_VIDEO`) per video.
 
         Raises:
@@ -194,7 +194,8 @@ class JointProblem:
             other names are shared. ``v0`` (``initial_push``) is always per-video.
 
     Raises:
-        ValueError: see :meth:`JointSpace.from_spaces`, or an entry that is not a Problem.
+        ValueError: see :meth:`JointSpace.from_spaces`.
+        TypeError: an entry that is not a Problem.
 
     Interface (as :class:`Problem`, for ``fit_grad``): ``space``, ``dim``, ``names``,
     ``likelihood`` (``log_norm``, ``is_gaussian``), ``residual_fn``, ``log_likelihood``,
@@ -208,7 +209,7 @@ class JointProblem:
         problems = tuple(problems)
         for p in problems:
             if not isinstance(p, Problem):
-                raise ValueError(f"JointProblem needs Problem objects, got {type(p).__name__}")
+                raise TypeError(f"JointProblem needs Problem objects, got {type(p).__name__}")
         self.problems = problems
         self.space = JointSpace.from_spaces([p.space for p in problems], per_video)
         self.likelihood = JointLikelihood(tuple(p.likelihood for p in problems))
