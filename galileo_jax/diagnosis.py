@@ -54,7 +54,8 @@ from galileo_jax.inference.summary import summarize_grad
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
 from galileo_jax.observation import Observation, profile_from_positions
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import rollout, sample_poses, scene_effects
+from galileo_jax.pipeline import simulated_poses
+from galileo_jax.simulate import scene_effects
 
 
 @dataclass(frozen=True)
@@ -179,7 +180,7 @@ def fit_model(scene: Scene, obs: Observation, effects, settings: DiagnoseSetting
     res = fit_grad(problem, key, n_starts=n_starts, n_screen=max(n_screen, n_starts), init=init,
                    max_steps=settings.max_steps)
     # one rollout over the whole video gives the poses, the profile and the residuals (one compile)
-    poses = _poses(problem, res.theta)
+    poses = simulated_poses(problem, res.theta)
     simulated = profile_from_positions(poses[..., :2], np.asarray(obs.frame_times, np.float64))
     residuals = np.asarray(problem.likelihood.residuals(jnp.asarray(simulated, jnp.float32)), np.float64)
     name = "base" if not effects else "base + " + " + ".join(e.name for e in effects)
@@ -187,14 +188,6 @@ def fit_model(scene: Scene, obs: Observation, effects, settings: DiagnoseSetting
                    residuals, float(res.loglik), simulated, poses, profile_rmse(obs, simulated))
     fit.criticism = criticism.summarize(obs, simulated, poses, settings.sd_model)
     return fit
-
-
-def _poses(problem: Problem, theta) -> np.ndarray:
-    obs = problem.observation
-    sim, n = problem.sim, problem.n_steps_full
-    phys = problem.space.physical(jnp.asarray(theta, jnp.float32))
-    traj = jax.jit(lambda p: rollout(sim, p, n))(phys)
-    return np.asarray(sample_poses(traj, jnp.asarray(obs.frame_times - obs.release_time, jnp.float32)))
 
 
 #: Fractions of a parameter's range at which the screen also evaluates each effect (a one-sided

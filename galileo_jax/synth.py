@@ -482,8 +482,6 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
             effect values do not fit the effects.
     """
     effs = scene_effects(scene, effects)
-    if not effs:
-        return _simulate_base(scene, params, fps, rest_frames, n_frames, max_seconds, settle_seconds)
     check_applicable(effs, scene)
     values = _effect_vector(effs, params, effect_values)
     substeps = scene.simulation.substeps
@@ -507,8 +505,8 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
         else:  # model updates and release velocity only: plain steps are c_step without hooks
             mujoco.mj_step(model, data, nstep=substeps)
         if not np.all(np.isfinite(data.qpos)):
-            raise GalileoError("the simulation diverged (non-finite state); check the masses, frictions and "
-                               "effect values")
+            raise GalileoError("the simulation diverged (non-finite state); check the masses"
+                               + (", frictions and effect values" if effs else " and frictions"))
         frames.append(data.qpos.copy())
         step = np.linalg.norm(_centres(frames[-1], index) - _centres(frames[-2], index), axis=-1)
         still = still + 1 if np.all(step < REST_SPEED / fps) else 0
@@ -535,31 +533,6 @@ def _effect_vector(effects, params: PhysParams, effect_values) -> np.ndarray:
         raise GalileoError(f"{values.size} effect values given but the effects take {len(names)} "
                            f"({', '.join(names) or 'none'})")
     return values
-
-
-def _simulate_base(scene: Scene, params: PhysParams, fps: float, rest_frames: int, n_frames: int | None,
-                   max_seconds: float, settle_seconds: float) -> Motion:
-    """:func:`simulate_motion` of the base model (no effect): whole frames of ``mj_step``."""
-    substeps = scene.simulation.substeps
-    model, index = build_model(scene, timestep=physics_timestep(fps, substeps))
-    data = mujoco.MjData(model)
-    set_physics(model, data, index, params)
-    mujoco.mj_forward(model, data)
-    limit = n_frames if n_frames is not None else max(rest_frames + 2, int(round(max_seconds * fps)))
-    settle = max(1, int(round(settle_seconds * fps)))
-    frames = [data.qpos.copy()] * (rest_frames + 1)
-    still = 0
-    while len(frames) < limit:
-        mujoco.mj_step(model, data, nstep=substeps)
-        if not np.all(np.isfinite(data.qpos)):
-            raise GalileoError("the simulation diverged (non-finite state); check the masses and frictions")
-        frames.append(data.qpos.copy())
-        step = np.linalg.norm(_centres(frames[-1], index) - _centres(frames[-2], index), axis=-1)
-        still = still + 1 if np.all(step < REST_SPEED / fps) else 0
-        if n_frames is None and still >= settle:
-            break
-    qpos = np.stack(frames)
-    return Motion(qpos, _centres(qpos, index), rest_frames, fps)
 
 
 # --------------------------------------------------------------------------- rendering

@@ -202,8 +202,12 @@ class JointProblem:
     ``log_density``, ``residuals``, ``simulate``, ``map_batch``.
     """
 
+    # The batched API only needs space, loglik_z, max_batch and _jit_cache: share Problem's.
     map_batch = Problem.map_batch
     _jitted = Problem._jitted
+    log_density_fn = Problem.log_density_fn
+    log_density = Problem.log_density
+    log_likelihood = Problem.log_likelihood
 
     def __init__(self, problems: Sequence[Problem], per_video: Iterable[str] = ()):
         problems = tuple(problems)
@@ -273,19 +277,6 @@ class JointProblem:
         return fd_jacobian_fn(res, fd_step) if jacobian == "fd" else res
 
     # ------------------------------------------------------------------ jitted batched API
-    def log_density_fn(self, zb: jax.Array) -> jax.Array:
-        """Pure batched log posterior density (unnormalised), (B, D) -> (B,)."""
-        lp = self.space.log_prior(zb) + self.map_batch(self.loglik_z, zb)
-        return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
-
-    def log_density(self, z: jax.Array) -> jax.Array:
-        """Jitted :meth:`log_density_fn`: (B, D) -> (B,)."""
-        return self._jitted("log_density", self.log_density_fn)(jnp.asarray(z, jnp.float32))
-
-    def log_likelihood(self, z: jax.Array) -> jax.Array:
-        """Joint log-likelihood at unconstrained points, (B, D) -> (B,) (sum over videos)."""
-        return self._jitted("log_likelihood", lambda zb: self.map_batch(self.loglik_z, zb))(jnp.asarray(z, jnp.float32))
-
     def video_log_likelihoods(self, theta: jax.Array) -> np.ndarray:
         """Per-video log-likelihoods at joint theta: (D,) -> (n_videos,), (B, D) -> (B, n_videos)."""
         theta = jnp.asarray(theta, jnp.float32)

@@ -13,6 +13,17 @@ import numpy as np  # noqa: E402
 from galileo_jax.report.results import atomic_path  # noqa: E402
 
 
+def _save(fig, path, title: str | None, layout: bool = True) -> None:
+    """Title, lay out, write ``fig`` atomically as PNG (110 dpi) and close it."""
+    if title:
+        fig.suptitle(title, fontsize=10)
+    if layout:
+        fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
 def trace_names(n_objects: int) -> list[str]:
     """Names of the profile's rows: "object 1 x", "object 1 y", ... (y is vertical, up)."""
     return [f"object {i + 1} {axis}" for i in range(n_objects) for axis in ("x", "y")]
@@ -59,12 +70,7 @@ def profile_figure(path: str | Path, times: np.ndarray, observed: np.ndarray, si
     axes[0, 1].set_title("standardised residuals (band: +-2 sd)", fontsize=9)
     axes[-1, 0].set_xlabel("time in video (s)")
     axes[-1, 1].set_xlabel("time in video (s)")
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    _save(fig, path, title)
 
 
 #: Shading colour of each motion phase (:data:`galileo_jax.criticism.PHASES`) in residual figures.
@@ -181,12 +187,7 @@ def residual_figure(path: str | Path, times: np.ndarray, standardised_residuals:
                               "y": tuple(np.asarray(a, np.float64) for a in py.get_data()),
                               "spans": spans, "marked": marked})
     axes[-1, 0].set_xlabel("time in video (s)")
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    _save(fig, path, title)
     return out
 
 
@@ -257,7 +258,5 @@ def model_comparison_figure(path: str | Path, models: list[dict], title: str = "
            "rmse": np.array([b.get_height() for b in bars1]),
            "noise_floor": drawn_floor,
            "delta_loglik": np.where(np.isfinite(dll), np.array([b.get_height() for b in bars2]), np.nan)}
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    _save(fig, path, None, layout=False)
     return out
