@@ -120,8 +120,10 @@ def problems_for(scenes, obs, effects, fine_steep: bool = False) -> list[Problem
 
 def gof(jp: JointProblem, theta: np.ndarray) -> dict:
     """Goodness of fit of a joint estimate: per-video and overall chi-square, RMSE, log L."""
-    r_all = np.asarray(jp.residuals(jnp.asarray(theta)), np.float64)
-    blocks = jp.split_residuals(r_all)
+    r_pad = np.asarray(jp.residuals(jnp.asarray(theta)), np.float64)
+    # residuals are padded to fixed length (zeros outside the mask): keep the used samples only
+    blocks = [lik.used(b) for lik, b in zip(jp.likelihood.likelihoods, jp.split_residuals(r_pad))]
+    r_all = np.concatenate(blocks)
     sims = [np.asarray(s, np.float64) for s in jp.simulate(jnp.asarray(theta))]
     ll_video = jp.video_log_likelihoods(jnp.asarray(theta))
     videos = []
@@ -133,7 +135,7 @@ def gof(jp: JointProblem, theta: np.ndarray) -> dict:
         rmse = np.sqrt(np.mean(diff**2, axis=1))
         # tracking noise alone: exact MA(1) whitening, no model floor
         lik0 = make_likelihood(o, "gaussian_ma1", 0.0)
-        r0 = np.asarray(lik0.residuals(jnp.asarray(sim, jnp.float32)), np.float64)
+        r0 = lik0.used_residuals(sim)
         ss, n = float(np.sum(r**2)), int(r.size)
         ss0 = float(np.sum(r0**2))
         # along-slope acceleration, observed vs simulated (least-squares slope over the moving samples)
@@ -197,8 +199,9 @@ def run_model(label: str, probs: list[Problem], args, grid: np.ndarray) -> dict:
     g = gof(jp, res.theta)
     t0 = time.perf_counter()
     thetas = np.tile(res.theta, (grid.size, 1))
-    thetas[:, 0] = grid  # d > 1: a slice through the estimate along k1 (the others fixed), not a profile
-    grid_ll = jp.video_log_likelihoods(jnp.asarray(thetas, jnp.float32))  # (G, 4)
+    k1 = list(jp.names).index("k1")
+    thetas[:, k1] = grid  # d > 1: a slice through the estimate along k1 (the others fixed), not a profile
+    grid_ll = jp.video_log_likelihoods(jnp.asarray(thetas))  # (G, 4)
     t_grid = time.perf_counter() - t0
     n_res = g["overall"]["n"]
     scale = math.sqrt(max(2.0 * res.cost / max(n_res - jp.dim, 1), 1.0))
@@ -251,7 +254,7 @@ def write_md(path: Path, rep: dict) -> None:
     for m in models:
         f, o = m["fit"], m["gof"]["overall"]
         extra = "".join(f"; {n} = {t:.3f} [{i[0]:.3f}, {i[1]:.3f}]" for n, t, i in
-                        zip(f["names"][1:], f["theta"][1:], f["interval90"][1:]))
+                        zip(f["names"][1:], f["theta"][1:], f["interval90"][1:]) if "@" not in n)
         L.append(f"| {m['label']} | {f['theta'][0]:.3f}{extra} | [{f['interval90'][0][0]:.3f}, {f['interval90'][0][1]:.3f}] | "
                  f"{_set_text(m['grid']['profile'])} | {f['loglik']:.1f} | "
                  f"{o['sum_r2']:.0f} / {o['df']} ({fmt_p(o['chi2_p'])}) | "

@@ -6,12 +6,18 @@ which effect is missing (or that none is), how much the error falls when it is a
 whether the residuals then look like noise (:func:`galileo_jax.diagnosis.diagnose` explains
 the statistics).
 
-Outputs (in ``--out``, default ``<video>_diagnose/``, each written atomically):
+Several videos of one setup (``diagnose a.mp4 b.mp4 ...``) are diagnosed together: one set of
+parameters fits all of them (``v0`` and ``--per-video`` names per video), and an effect must
+explain them jointly.
+
+Outputs (in ``--out``, default ``<first video>_diagnose/``, each written atomically):
 ``diagnosis.json`` (every model's estimates with 90% intervals, log-likelihood, RMSE, the
 residual table and verdict, the screen and the tests), ``residuals_base.png`` and
 ``residuals_final.png`` (standardised residuals over time with the motion phases),
 ``model_comparison.png`` (RMSE and log-likelihood per model against the noise floor) and
-``profiles_final.png`` (observed vs simulated profiles of the final model).
+``profiles_final.png`` (observed vs simulated profiles of the final model with a 90% band
+from its parameter uncertainty). With several videos the per-video figures end in ``_1``,
+``_2``, ...
 
 ``--list`` prints the available effects. Every user mistake ends in one line and a non-zero
 exit status.
@@ -25,26 +31,29 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from galileo_jax.errors import GalileoError, VideoError, cli_entry  # noqa: E402
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # noqa: D401 - argparse API
-        raise GalileoError(f"{message} (see python -m galileo_jax.diagnose --help)")
+from galileo_jax.cli import OneLineParser, videos_and_scenes  # noqa: E402
+from galileo_jax.errors import GalileoError, cli_entry  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m galileo_jax.diagnose",
-                description="Find which physical effect the sliding-block model is missing for a ramp video.")
-    p.add_argument("video", nargs="?", help="video file of the ramp scene")
-    p.add_argument("--scene", help="scene file (YAML); default: the video's name with .yaml")
+    p = OneLineParser(prog="python -m galileo_jax.diagnose",
+                      description="Find which physical effect the sliding-block model is missing for a ramp video "
+                                  "(or for several videos of one setup, fitted jointly).")
+    p.add_argument("videos", nargs="*", metavar="VIDEO", help="video file(s) of the ramp scene; several videos of one "
+                                                              "setup share their parameters")
+    p.add_argument("--scene", action="append", help="scene file (YAML); default: each video's name with .yaml; "
+                                                    "give it once for all videos or once per video")
     p.add_argument("--effects", help="candidate effects, comma-separated (default: all that apply)")
+    p.add_argument("--per-video", help="with several videos: parameters fitted per video, comma-separated "
+                                       "(default: all shared except v0)")
     p.add_argument("--refits", type=int, default=3, help="candidates refitted after the screen (default 3)")
     p.add_argument("--max-effects", type=int, default=1, help="effects added one after another at most (default 1)")
     p.add_argument("--alpha", type=float, default=0.05, help="false-alarm rate of 'an effect is missing' (default 0.05)")
-    p.add_argument("--out", help="output folder (default: <video>_diagnose next to the video)")
+    p.add_argument("--out", help="output folder (default: <first video>_diagnose next to it)")
     p.add_argument("--fps", type=float, help="frame rate override (frames per second)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--list", action="store_true", help="list the available effects and exit")
@@ -64,10 +73,11 @@ def effects_table() -> str:
     return "\n".join(lines)
 
 
-def summary_text(diag, video: Path, elapsed: float | None = None) -> str:
+def summary_text(diag, videos: list[Path]) -> str:
     """Console report: base verdict, screen, refits with tests, decision, error before/after."""
     d = diag.decision
-    lines = [f"galileo_jax diagnose: {video.name} (scene {diag.scene.name})", "",
+    what = ", ".join(f"{v.name} (scene {s.name})" for v, s in zip(videos, diag.scenes))
+    lines = [f"galileo_jax diagnose: {what}", "",
              f"  base model: RMSE {diag.fits[0].rmse:.3f} m/s (noise floor {diag.noise_floor:.3f} m/s)",
              f"  {diag.fits[0].criticism.get('verdict', '')}", ""]
     for rnd in diag.rounds:
@@ -80,6 +90,7 @@ def summary_text(diag, video: Path, elapsed: float | None = None) -> str:
         lines.append(f"    {'refit: effect':<26}{'dlogL':>9}{'p':>10}{'RMSE':>8}{'drop':>7}   estimate [90%]")
         for x in rnd["refits"]:
             est = "; ".join(f"{k} {v['mean']:.3g} [{v['interval90'][0]:.3g}, {v['interval90'][1]:.3g}]"
+                            if v.get("interval90") else f"{k} {v['mean']:.3g} (no gain)"
                             for k, v in x["parameters"].items()) or "-"
             mark = "  <- supported" if x["supported"] else ""
             lines.append(f"    {x['effect']:<26}{x['delta_loglik']:>9.1f}{x['p_value']:>10.2g}{x['rmse_after']:>8.3f}"
@@ -96,34 +107,56 @@ def summary_text(diag, video: Path, elapsed: float | None = None) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(diag, out: Path, title: str) -> dict:
-    """Write diagnosis.json and the figures into ``out``; return {kind: path}."""
-    import numpy as np
+def predictive_band(fit, key, n_draws: int = 32) -> list[np.ndarray]:
+    """Per video the (2, 2n, N-1) 5% and 95% quantiles of the profiles simulated at ``n_draws``
+    draws from the fit's Gauss-Newton approximation (a 90% band of the parameter uncertainty)."""
+    from galileo_jax.inference.grad import gauss_newton_draws
+
+    draws = gauss_newton_draws(fit.result, fit.problem.space, key, n_draws)
+    bands = []
+    for j, p in enumerate(fit.union.problems):
+        sims = np.asarray(p.simulate(fit.union.theta_for(j, draws)))
+        bands.append(np.quantile(sims, [0.05, 0.95], axis=0))
+    return bands
+
+
+def write_outputs(diag, out: Path, titles: list[str]) -> dict:
+    """Write diagnosis.json and the figures into ``out``; return {kind: path}.
+
+    With several videos every per-video figure gets the suffix ``_<j>`` (j = 1, 2, ...).
+    """
+    import jax
 
     from galileo_jax import criticism
     from galileo_jax.report.figures import model_comparison_figure, profile_figure, residual_figure
     from galileo_jax.report.results import package_versions, write_json
 
     out.mkdir(parents=True, exist_ok=True)
-    obs = diag.observation
-    times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
-    mask = np.asarray(obs.mask, bool)
     outputs = {}
-    for label, fit in (("base", diag.fits[0]), ("final", diag.final)):
-        z = criticism.standardised_residuals(obs, fit.simulated, fit.problem.likelihood.sd_model)
-        phases = criticism.motion_phases(fit.poses, obs.frame_times, obs.release_time, obs.n_objects)
-        table = criticism.residual_table(obs, fit.simulated, fit.problem.likelihood.sd_model, phases)
-        path = out / f"residuals_{label}.png"
-        residual_figure(path, times, z, phases, mask, f"{title}: {fit.name}", flagged=criticism.flagged(table))
-        outputs[f"residuals_{label}"] = str(path)
+    final = diag.final
+    bands = predictive_band(final, jax.random.PRNGKey(1))
+    several = len(diag.observations) > 1
+    for j, (obs, title) in enumerate(zip(diag.observations, titles)):
+        suffix = f"_{j + 1}" if several else ""
+        times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
+        mask = np.asarray(obs.mask, bool)
+        sd_model = final.union.problems[j].likelihood.sd_model
+        for label, fit in (("base", diag.fits[0]), ("final", final)):
+            vf = fit.videos[j]
+            z = criticism.standardised_residuals(obs, vf.simulated, sd_model)
+            phases = criticism.motion_phases(vf.poses, obs.frame_times, obs.release_time, obs.n_objects)
+            table = criticism.residual_table(obs, vf.simulated, sd_model, phases)
+            path = out / f"residuals_{label}{suffix}.png"
+            residual_figure(path, times, z, phases, mask, f"{title}: {fit.name}", flagged=criticism.flagged(table))
+            outputs[f"residuals_{label}{suffix}"] = str(path)
+        path = out / f"profiles_final{suffix}.png"
+        profile_figure(path, times, obs.profile, final.videos[j].simulated, obs.velocity_sd, mask, bands[j],
+                       f"{title}: {final.name}")
+        outputs[f"profiles_final{suffix}"] = str(path)
     models = [{"name": f.name, "rmse": f.rmse, "loglik": f.loglik, "noise_floor": diag.noise_floor} for f in diag.fits]
     path = out / "model_comparison.png"
-    model_comparison_figure(path, models, f"{title}: error per model")
+    model_comparison_figure(path, models, f"{titles[0] if not several else 'joint'}: error per model")
     outputs["model_comparison"] = str(path)
-    path = out / "profiles_final.png"
-    final = diag.final
-    profile_figure(path, times, obs.profile, final.simulated, obs.velocity_sd, mask, None, f"{title}: {final.name}")
-    outputs["profiles_final"] = str(path)
     path = out / "diagnosis.json"
     write_json(path, {**diag.as_dict(), "outputs": outputs, "versions": package_versions()})
     outputs["result"] = str(path)
@@ -136,40 +169,44 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         print(effects_table())
         return 0
-    if args.video is None:
+    if not args.videos:
         raise GalileoError("give a video file (or --list); see python -m galileo_jax.diagnose --help")
-    video = Path(args.video)
-    if not video.is_file():
-        raise VideoError(f"video {video} not found; check the path")
     for name, value, low in (("--refits", args.refits, 0), ("--max-effects", args.max_effects, 1)):
         if value < low:
             raise GalileoError(f"{name} must be >= {low}, got {value}")
     if not 0 < args.alpha < 1:
         raise GalileoError(f"--alpha must be between 0 and 1, got {args.alpha}")
+    inputs = videos_and_scenes(args.videos, args.scene)
     from galileo_jax.diagnosis import DiagnoseSettings, candidate_effects, diagnose
     from galileo_jax.effects import resolve_effects
-    from galileo_jax.fit import _scene_path
-    from galileo_jax.scene import load_scene
 
-    scene = load_scene(_scene_path(video, args.scene))
     names = None if args.effects is None else tuple(e.name for e in resolve_effects(args.effects))
-    if not candidate_effects(scene, names):
-        raise GalileoError(f"none of the candidate effects applies to scene {scene.name!r}; "
-                           f"see python -m galileo_jax.diagnose --list")
-    out = Path(args.out) if args.out else video.with_name(video.stem + "_diagnose")
+    for video, scene in inputs:
+        if not candidate_effects(scene, names):
+            raise GalileoError(f"none of the candidate effects applies to scene {scene.name!r} of {video.name}; "
+                               f"see python -m galileo_jax.diagnose --list")
+    per_video = tuple(s.strip() for s in (args.per_video or "").split(",") if s.strip())
+    if per_video and len(inputs) == 1:
+        raise GalileoError("--per-video needs several videos")
+    first = inputs[0][0]
+    out = Path(args.out) if args.out else first.with_name(first.stem + "_diagnose")
 
     from galileo_jax.jaxcache import enable_compilation_cache
     from galileo_jax.observe import observe, read_video
 
     enable_compilation_cache()
     t0 = time.perf_counter()
-    clip = read_video(video, fps_override=args.fps or scene.video.fps)
-    obs = observe(clip, scene, progress=not args.quiet)
-    settings = DiagnoseSettings(candidates=names, refits=args.refits, alpha=args.alpha, max_effects=args.max_effects)
+    observations = [observe(read_video(video, fps_override=args.fps or scene.video.fps), scene, progress=not args.quiet)
+                    for video, scene in inputs]
+    settings = DiagnoseSettings(candidates=names, refits=args.refits, alpha=args.alpha, max_effects=args.max_effects,
+                                per_video=per_video)
     say = None if args.quiet else (lambda msg: print(f"  [{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr))
-    diag = diagnose(scene, obs, settings, seed=args.seed, progress=say)
-    outputs = write_outputs(diag, out, video.name)
-    print(summary_text(diag, video))
+    try:
+        diag = diagnose([s for _, s in inputs], observations, settings, seed=args.seed, progress=say)
+    except ValueError as err:  # e.g. per-video names that are no parameter, bounds that do not overlap
+        raise GalileoError(str(err)) from None
+    outputs = write_outputs(diag, out, [v.name for v, _ in inputs])
+    print(summary_text(diag, [v for v, _ in inputs]))
     for kind, path in outputs.items():
         print(f"  wrote {kind}: {path}")
     print(f"  total time {time.perf_counter() - t0:.1f} s")

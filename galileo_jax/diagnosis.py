@@ -1,6 +1,7 @@
 """Which physics is the model missing? Fit, criticise, screen candidate effects, refit, decide.
 
-:func:`diagnose` runs the model-criticism loop of issue 3 on one video's observation:
+:func:`diagnose` runs the model-criticism loop of issue 3 on one video's observation, or on
+several videos of one setup at once (shared parameters, :mod:`galileo_jax.inference.joint`):
 
 1. **Base fit**: the scene's model (the sliding block plus the scene's own effects) by
    Levenberg-Marquardt (:func:`~galileo_jax.inference.grad.fit_grad`).
@@ -8,11 +9,11 @@
    (:mod:`galileo_jax.criticism`) and a one-line verdict.
 3. **Screen**: for every candidate effect with a parameter, the score statistic of
    :func:`~galileo_jax.inference.screen.score_test` (the residual projected on the effect's
-   sensitivity after projecting out the base parameters) and a coarse profile over the
+   sensitivity after projecting out the current parameters) and a coarse profile over the
    parameter's range with the same first-order re-adjustment (:func:`screen_candidates`):
    one batched set of rollouts.
 4. **Refit** the ``refits`` best-scoring candidates (and every structural effect, which the
-   screen cannot rank) from the base estimate plus the screen's linearised step.
+   screen cannot rank) from the current estimate plus the screen's step.
 5. **Decide**: an effect is *supported* when its likelihood-ratio test against the current
    model (boundary-corrected, or Vuong's test for structural effects) has p below
    ``alpha / m``, m the number of candidates considered (Bonferroni over everything screened,
@@ -22,6 +23,15 @@
    two cannot be told apart with this video and the report says so, naming the measurement
    that would separate them (each effect's ``evidence``). Without a supported effect the
    answer is "no missing effect".
+
+One problem for every model. All candidate effects with parameters are simulated in ONE
+problem (the "union"); a model is that problem with the effects it does not contain held at
+their neutral values (:class:`~galileo_jax.inference.fixed.FixedProblem`), which give back the
+base model exactly. The base fit, the screen and every refit therefore share one simulator,
+and all refits of one round one compiled Levenberg-Marquardt program; the observation is an
+argument of those programs, so the next video of the scene compiles nothing. Structural
+effects (no parameter, e.g. ``rolling``) change the model's structure and get a union of
+their own.
 
 Why this criterion (and not cross-validation or an information criterion): the question is a
 test ("is the base model enough?") with a controlled false-alarm rate, and LR tests are the
@@ -39,22 +49,22 @@ in :mod:`galileo_jax.effects`, :mod:`galileo_jax.inference` and :mod:`galileo_ja
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax import criticism
 from galileo_jax.effects import Effect, available_effects, resolve_effects
-from galileo_jax.effects.runtime import neutral_values
 from galileo_jax.inference.grad import GradResult, fit_grad
+from galileo_jax.inference.joint import JointProblem
 from galileo_jax.inference.problem import Problem
 from galileo_jax.inference.screen import lr_pvalue, project_out, score_test, vuong_test
 from galileo_jax.inference.summary import summarize_grad
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
-from galileo_jax.observation import Observation, profile_from_positions
+from galileo_jax.observation import Observation
 from galileo_jax.scene import Scene
-from galileo_jax.pipeline import simulated_poses
 from galileo_jax.simulate import scene_effects
 
 
@@ -72,10 +82,13 @@ class DiagnoseSettings:
         likelihood, sd_model: likelihood kind and model-error floor (m/s), as in ``fit``.
         base_starts, base_screen: multi-start settings of the base fit.
         refit_starts, refit_screen: extra screened starts of each refit besides the start
-            from the current estimate plus the screen's step (0: that start only, which saves
-            a compilation per refit).
+            from the current estimate plus the screen's step (0: that start only). One by
+            default: the current (misfitting) estimate can sit on a ridge far from the larger
+            model's optimum (measured on a cubic-drag video: from it alone LM ended 2.5 nats
+            low with the drag 20% off; with one screened start at the optimum).
         max_steps: Levenberg-Marquardt step limit.
         indistinct_p: Vuong p-value above which two supported effects count as indistinguishable.
+        per_video: with several videos, parameter names fitted per video (besides ``v0``).
     """
 
     candidates: tuple[str, ...] | None = None
@@ -87,10 +100,30 @@ class DiagnoseSettings:
     sd_model: float = DEFAULT_SD_MODEL
     base_starts: int = 4
     base_screen: int = 256
-    refit_starts: int = 0
+    refit_starts: int = 1
     refit_screen: int = 64
     max_steps: int = 40
     indistinct_p: float = 0.05
+    per_video: tuple[str, ...] = ()
+
+
+@dataclass
+class VideoFit:
+    """One video's view of a fitted model.
+
+    Attributes:
+        simulated: (2n_obj, N-1) simulated profile over the whole video, m/s.
+        poses: (N, n_obj, 3) simulated poses at the frame times (x m, z m, pitch rad).
+        residuals: (T * m,) standardised residuals at the used samples.
+        rmse: RMSE of observed - simulated velocity over the fit window, all traces, m/s.
+        criticism: :func:`galileo_jax.criticism.summarize` dict (phases, table, verdict).
+    """
+
+    simulated: np.ndarray
+    poses: np.ndarray
+    residuals: np.ndarray
+    rmse: float
+    criticism: dict
 
 
 @dataclass
@@ -100,42 +133,67 @@ class ModelFit:
     Attributes:
         name: "base" or "base + effect + ...".
         effects: names of the added effects (the scene's own are always included).
-        problem: the inference problem.
-        result: the Levenberg-Marquardt result.
-        summary: :func:`summarize_grad` dict (estimates, 90% intervals).
-        residuals: (n,) standardised residuals at the estimate.
+        union: the :class:`Union` problem the model lives in (module docstring).
+        result: the Levenberg-Marquardt result (in the problem's coordinates; the effects
+            the model does not contain are held, ``result.fixed``).
+        summary: :func:`summarize_grad` dict (estimates, 90% intervals) of a single video,
+            or {"parameters": ...} of a joint fit.
         loglik: log-likelihood at the estimate (nats).
-        simulated: (2n_obj, N-1) simulated profile over the whole video, m/s.
-        poses: (N, n_obj, 3) simulated poses at the frame times.
-        rmse: RMSE of observed - simulated velocity over the fit window, all traces, m/s.
-        criticism: :func:`galileo_jax.criticism.summarize` dict (phases, table, verdict).
+        residuals: (n,) standardised residuals at the used samples of all videos.
+        rmse: RMSE of observed - simulated velocity over every video's fit window, m/s.
+        videos: per video its :class:`VideoFit`.
+        criticism: {"verdict", "looks_like_noise", "videos": per-video criticism dicts}.
     """
 
     name: str
     effects: tuple[str, ...]
-    problem: Problem
+    union: "Union"
     result: GradResult
     summary: dict
-    residuals: np.ndarray
     loglik: float
-    simulated: np.ndarray
-    poses: np.ndarray
+    residuals: np.ndarray
     rmse: float
+    videos: list[VideoFit]
     criticism: dict = field(default_factory=dict)
+
+    @property
+    def problem(self):
+        """The problem (single-video Problem or JointProblem) the model was fitted in."""
+        return self.union.problem
+
+    @property
+    def simulated(self) -> np.ndarray:
+        """The first video's simulated profile (the only one for a single-video diagnosis)."""
+        return self.videos[0].simulated
+
+    @property
+    def poses(self) -> np.ndarray:
+        """The first video's simulated poses."""
+        return self.videos[0].poses
 
     def as_dict(self) -> dict:
         return {"name": self.name, "effects": list(self.effects), "parameters": self.summary["parameters"],
-                "loglik": self.loglik, "rmse_m_per_s": self.rmse, "iterations": int(self.result.iterations),
+                "loglik": self.loglik, "rmse_m_per_s": self.rmse,
+                "rmse_per_video_m_per_s": [v.rmse for v in self.videos], "iterations": int(self.result.iterations),
                 "converged": bool(self.result.converged), "time_s": float(self.result.time_s),
                 "criticism": self.criticism}
 
 
 @dataclass
 class Diagnosis:
-    """Result of :func:`diagnose` (JSON-ready through :meth:`as_dict`)."""
+    """Result of :func:`diagnose` (JSON-ready through :meth:`as_dict`).
 
-    scene: Scene
-    observation: Observation
+    Attributes:
+        scenes, observations: per video.
+        noise_floor: RMSE (m/s) a perfect model would reach on all videos together.
+        fits: every fitted model, the base first.
+        rounds: per round the screen, the refits with their tests, the winner.
+        decision: the answer (:func:`_decision`).
+        timings: seconds per stage.
+    """
+
+    scenes: list[Scene]
+    observations: list[Observation]
     noise_floor: float
     fits: list[ModelFit]
     rounds: list[dict]
@@ -143,12 +201,20 @@ class Diagnosis:
     timings: dict
 
     @property
+    def scene(self) -> Scene:
+        return self.scenes[0]
+
+    @property
+    def observation(self) -> Observation:
+        return self.observations[0]
+
+    @property
     def final(self) -> ModelFit:
         """The model the diagnosis ends with (base plus the supported effects)."""
         return self.fits[self.decision.get("final_index", 0)]
 
     def as_dict(self) -> dict:
-        return {"scene": self.scene.name, "noise_floor_m_per_s": self.noise_floor,
+        return {"scenes": [s.name for s in self.scenes], "noise_floor_m_per_s": self.noise_floor,
                 "models": [f.as_dict() for f in self.fits], "rounds": self.rounds, "decision": self.decision,
                 "timings_s": self.timings}
 
@@ -160,6 +226,12 @@ def profile_rmse(obs: Observation, simulated: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d**2)))
 
 
+def pooled_rms(values: Sequence[float], weights: Sequence[float]) -> float:
+    """sqrt(sum w v^2 / sum w): RMS values of several videos pooled by their sample counts."""
+    v, w = np.asarray(values, np.float64), np.asarray(weights, np.float64)
+    return float(np.sqrt(np.sum(w * v**2) / np.sum(w)))
+
+
 def candidate_effects(scene: Scene, names=None, exclude=()) -> tuple[Effect, ...]:
     """Effects to consider for ``scene``: the named ones (default: all registered) that apply to
     the scene and are not already in it or in ``exclude``."""
@@ -168,26 +240,81 @@ def candidate_effects(scene: Scene, names=None, exclude=()) -> tuple[Effect, ...
     return tuple(e for e in pool if e.name not in have and not e.applies(scene))
 
 
-def fit_model(scene: Scene, obs: Observation, effects, settings: DiagnoseSettings, key, *,
-              init: np.ndarray | None = None, starts: int | None = None, screen: int | None = None) -> ModelFit:
-    """Fit base + ``effects`` by Levenberg-Marquardt and evaluate it (residuals, profiles, criticism)."""
-    from galileo_jax import criticism
+# ---------------------------------------------------------------------------- the union problem
+def base_name(name: str) -> str:
+    """A joint coordinate's parameter name: ``"v0@2"`` -> ``"v0"``."""
+    return name.split("@", 1)[0]
 
-    effects = resolve_effects(effects)
-    problem = Problem(scene, obs, likelihood=settings.likelihood, sd_model=settings.sd_model, effects=effects)
+
+class Union:
+    """The problem holding the base model and a set of effects, and which coordinates each effect owns.
+
+    Arguments:
+        scenes, observations: the videos.
+        effects: the effects simulated (all held at neutral unless a model frees them).
+        settings: likelihood kind and floor, per-video names.
+    """
+
+    def __init__(self, scenes, observations, effects, settings: DiagnoseSettings):
+        self.effects = tuple(effects)
+        problems = [Problem(s, o, likelihood=settings.likelihood, sd_model=settings.sd_model, effects=self.effects)
+                    for s, o in zip(scenes, observations)]
+        self.problems = problems
+        self.problem = problems[0] if len(problems) == 1 else JointProblem(problems, settings.per_video)
+        owner = {p.name: (e, p) for e in self.effects for p in e.params}
+        self.coords: dict[str, list[int]] = {e.name: [] for e in self.effects}
+        self.neutral: dict[str, float] = {}
+        for j, name in enumerate(self.problem.names):
+            if base_name(name) in owner:
+                e, prm = owner[base_name(name)]
+                self.coords[e.name].append(j)
+                self.neutral[name] = prm.neutral
+
+    def theta_for(self, j: int, theta: np.ndarray) -> np.ndarray:
+        """Video j's coordinates of the union's theta."""
+        if isinstance(self.problem, JointProblem):
+            return np.asarray(self.problem.theta_for(j, theta))
+        return np.asarray(theta)
+
+    def held(self, free_effects) -> dict[str, float]:
+        """{coordinate: neutral value} of the effects NOT in ``free_effects``."""
+        free = {j for e in free_effects for j in self.coords.get(e, [])}
+        return {n: v for n, v in self.neutral.items() if self.problem.names.index(n) not in free}
+
+
+def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, init: np.ndarray | None = None,
+              starts: int | None = None, screen: int | None = None) -> ModelFit:
+    """Fit base + ``free_effects`` inside ``union`` and evaluate it (residuals, profiles, criticism)."""
+    free_effects = tuple(free_effects)
     n_starts = settings.base_starts if starts is None else starts
     n_screen = settings.base_screen if screen is None else screen
-    res = fit_grad(problem, key, n_starts=n_starts, n_screen=max(n_screen, n_starts), init=init,
-                   max_steps=settings.max_steps)
-    # one rollout over the whole video gives the poses, the profile and the residuals (one compile)
-    poses = simulated_poses(problem, res.theta)
-    simulated = profile_from_positions(poses[..., :2], np.asarray(obs.frame_times, np.float64))
-    residuals = np.asarray(problem.likelihood.residuals(jnp.asarray(simulated, jnp.float32)), np.float64)
-    name = "base" if not effects else "base + " + " + ".join(e.name for e in effects)
-    fit = ModelFit(name, tuple(e.name for e in effects), problem, res, summarize_grad(res, problem.space),
-                   residuals, float(res.loglik), simulated, poses, profile_rmse(obs, simulated))
-    fit.criticism = criticism.summarize(obs, simulated, poses, settings.sd_model)
-    return fit
+    res = fit_grad(union.problem, key, n_starts=n_starts, n_screen=max(n_screen, n_starts), init=init,
+                   fixed=union.held(free_effects) or None, max_steps=settings.max_steps)
+    videos = []
+    for j, p in enumerate(union.problems):
+        theta = union.theta_for(j, res.theta)
+        # one whole-video rollout gives the poses, the profile and the residuals
+        poses = p.poses(theta)
+        obs = p.observation
+        simulated = np.diff(poses[..., :2], axis=0) / np.diff(obs.frame_times)[:, None, None]
+        simulated = simulated.reshape(simulated.shape[0], -1).T
+        videos.append(VideoFit(simulated, poses, p.likelihood.used_residuals(simulated), profile_rmse(obs, simulated),
+                               criticism.summarize(obs, simulated, poses, settings.sd_model)))
+    n_used = [int(np.sum(p.observation.mask)) * p.likelihood.obs.shape[0] for p in union.problems]
+    name = "base" if not free_effects else "base + " + " + ".join(free_effects)
+    if isinstance(union.problem, JointProblem):
+        summary = {"parameters": {n: {"mean": float(t), "sd": float(s), "interval90": [float(a), float(b)]}
+                                  for n, t, s, (a, b) in zip(res.names, res.theta, res.sd, res.interval90)
+                                  if n not in res.fixed or base_name(n) not in union.neutral}}
+    else:
+        summary = summarize_grad(res, union.problem.space)
+    verdicts = [v.criticism["verdict"] for v in videos]
+    crit = {"verdict": verdicts[0] if len(videos) == 1 else " ".join(f"Video {j + 1}: {v}" for j, v in enumerate(verdicts)),
+            "looks_like_noise": all(v.criticism["looks_like_noise"] for v in videos),
+            "videos": [v.criticism for v in videos]}
+    return ModelFit(name, free_effects, union, res, summary, float(res.loglik),
+                    np.concatenate([v.residuals for v in videos]), pooled_rms([v.rmse for v in videos], n_used),
+                    videos, crit)
 
 
 #: Fractions of a parameter's range at which the screen also evaluates each effect (a one-sided
@@ -195,10 +322,10 @@ def fit_model(scene: Scene, obs: Observation, effects, settings: DiagnoseSetting
 SCREEN_GRID = (0.05, 0.15, 0.4)
 
 
-def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings) -> list[dict]:
+def screen_candidates(union: Union, current: ModelFit, candidates, settings: DiagnoseSettings) -> list[dict]:
     """Rank the candidates with parameters at the current fit, in one batched set of rollouts.
 
-    Two statistics per candidate parameter, both predicted gains in 2 log L after re-adjusting
+    Two statistics per candidate coordinate, both predicted gains in 2 log L after re-adjusting
     the current model's parameters to first order (projecting the residual change on the
     orthogonal complement of their Jacobian J):
 
@@ -210,19 +337,14 @@ def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings)
     Candidates are ranked by the larger of the two (``statistic``); ``best_value`` is the grid
     value with the largest gain, used to start the refit.
 
-    Returns one dict per candidate parameter, sorted by statistic, largest first.
+    Returns one dict per candidate coordinate, sorted by statistic, largest first.
     """
-    with_params = [e for e in candidates if e.params]
-    if not with_params:
-        return []
-    scene, obs = current.problem.scene, current.problem.observation
-    current_effects = resolve_effects(current.effects)
-    problem = Problem(scene, obs, likelihood=settings.likelihood, sd_model=settings.sd_model,
-                      effects=tuple(current_effects) + tuple(with_params))
-    space = problem.space
-    d0 = current.problem.space.dim
-    theta0 = np.concatenate([np.asarray(current.result.theta, np.float64), neutral_values(with_params)])
-    lo, hi = np.asarray(space.lower), np.asarray(space.upper)
+    problem = union.problem
+    names = problem.names
+    lo, hi = np.asarray(problem.space.lower), np.asarray(problem.space.upper)
+    theta0 = np.asarray(current.result.theta, np.float64)
+    held = set(current.result.fixed)
+    free_now = [j for j, n in enumerate(names) if n not in held]
     points, plan = [theta0], []
 
     def add(point_values: dict) -> int:
@@ -232,29 +354,31 @@ def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings)
         points.append(p)
         return len(points) - 1
 
-    for j in range(d0):  # central differences in the current model's parameters
+    for j in free_now:  # central differences in the current model's parameters
         h = 0.01 * (hi[j] - lo[j])
-        plan.append(("base", j, h, add({j: theta0[j] + h}), add({j: theta0[j] - h})))
-    k = d0
-    for e in with_params:
-        for prm in e.params:
-            plus = add({k: prm.neutral + prm.screen_step})
-            minus = None if prm.one_sided else add({k: prm.neutral - prm.screen_step})
+        plan.append(("current", j, h, add({j: theta0[j] + h}), add({j: theta0[j] - h}), None))
+    by_name = {p.name: p for e in candidates for p in e.params}
+    for e in candidates:
+        for j in union.coords.get(e.name, []):
+            prm = by_name[base_name(names[j])]
+            plus = add({j: prm.neutral + prm.screen_step})
+            minus = None if prm.one_sided else add({j: prm.neutral - prm.screen_step})
             grid = []
             for f in SCREEN_GRID:
                 if prm.one_sided:
                     vals = [prm.lower + f * (prm.upper - prm.lower)]
                 else:
                     vals = [prm.neutral + f * (prm.upper - prm.neutral), prm.neutral - f * (prm.neutral - prm.lower)]
-                grid += [(v, add({k: v})) for v in vals]
-            plan.append((e.name, prm, plus, minus, grid))
-            k += 1
-    res = np.asarray(problem.residuals(jnp.asarray(np.stack(points), jnp.float32)), np.float64)
+                grid += [(v, add({j: v})) for v in vals]
+            plan.append((e.name, prm, names[j], plus, minus, grid))
+    if not any(x[0] != "current" for x in plan):
+        return []
+    res = np.asarray(problem.residuals(np.stack(points)), np.float64)
     r0 = res[0]
-    jac = np.stack([(res[ip] - res[im]) / (2 * h) for kind, _, h, ip, im in plan if kind == "base"], axis=1)
-    cands = [x for x in plan if x[0] != "base"]
+    jac = np.stack([(res[ip] - res[im]) / (2 * h) for kind, _, h, ip, im, *_ in plan if kind == "current"], axis=1)
+    cands = [x for x in plan if x[0] != "current"]
     sens, one_sided = [], []
-    for name, prm, plus, minus, grid in cands:
+    for _, prm, _, plus, minus, _ in cands:
         if minus is None:
             sens.append((res[plus] - r0) / prm.screen_step)
         else:
@@ -263,7 +387,7 @@ def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings)
     score = score_test(r0, jac, np.stack(sens, axis=1), np.asarray(one_sided))
     base_ss = float(np.sum(r0**2))
     rows = []
-    for c, (name, prm, plus, minus, grid) in enumerate(cands):
+    for c, (name, prm, coord, plus, minus, grid) in enumerate(cands):
         gains = []
         for v, ip in grid:
             # first-order re-adjustment of the current parameters around r0: r(eta) - J b
@@ -271,52 +395,85 @@ def screen_candidates(current: ModelFit, candidates, settings: DiagnoseSettings)
             gains.append((base_ss - float(np.sum((r0 + dr) ** 2)), v))
         g_best, v_best = max(gains)
         t = float(score.statistic[c])
-        rows.append({"effect": name, "parameter": prm.name, "statistic": max(t, g_best), "score": t,
+        rows.append({"effect": name, "parameter": coord, "statistic": max(t, g_best), "score": t,
                      "p_value": float(score.p_value[c]), "step": float(score.step[c]), "grid_gain": g_best,
                      "best_value": float(v_best), "identifiable": bool(score.identifiable[c])})
     return sorted(rows, key=lambda r: -r["statistic"])
 
 
-def _refit_init(current: ModelFit, effect: Effect, screen_row: dict | None) -> np.ndarray:
-    vals = []
-    for prm in effect.params:
+def _refit_init(union: Union, current: ModelFit, effect: Effect, screen_rows: list[dict]) -> np.ndarray:
+    """Start of a refit: the current estimate, the effect's coordinates at the screen's best guess.
+
+    The current estimate's free coordinates may sit at a bound (a misfitting model often pushes
+    the release time to the edge of its window); ``fit_grad`` moves such an ``init`` 1% of the
+    range inward, where LM can move it again."""
+    theta = np.asarray(current.result.theta, np.float64).copy()
+    names = union.problem.names
+    by_name = {p.name: p for p in effect.params}
+    for j in union.coords.get(effect.name, []):
+        prm = by_name[base_name(names[j])]
         span = prm.upper - prm.lower
         v = prm.neutral + prm.screen_step
-        if screen_row and screen_row["parameter"] == prm.name:
-            local = prm.neutral + screen_row["step"]
+        row = next((r for r in screen_rows if r["parameter"] == names[j]), None)
+        if row is not None:
+            local = prm.neutral + row["step"]
             # start from the grid value when the coarse profile beats the local linear step
-            v = screen_row["best_value"] if screen_row["grid_gain"] > screen_row["score"] else local
+            v = row["best_value"] if row["grid_gain"] > row["score"] else local
         if prm.one_sided and v <= prm.neutral:
             v = prm.neutral + prm.screen_step
-        vals.append(float(np.clip(v, prm.lower + 0.01 * span, prm.upper - 0.01 * span)))
-    return np.concatenate([np.asarray(current.result.theta, np.float64), np.asarray(vals)])
+        theta[j] = float(np.clip(v, prm.lower + 0.01 * span, prm.upper - 0.01 * span))
+    return theta
 
 
-def compare(current: ModelFit, alt: ModelFit, effect: Effect) -> dict:
-    """Test ``alt`` (= current + effect) against ``current``: LR (boundary-corrected) or Vuong."""
+def nested_floor(current: ModelFit, alt: ModelFit, effect: Effect) -> ModelFit:
+    """The nested model at its neutral values, when its refit ended below ``current``.
+
+    current + effect contains current (the effect at its neutral value), so its maximum
+    likelihood is at least current's; a refit that ends lower stopped in a worse local optimum of
+    the rough cost surface. The model is then reported at current's estimate with the effect
+    neutral (LR = 0), with a note, instead of with a negative likelihood ratio.
+    """
+    names = {p.name for p in effect.params}
+    params = dict(current.summary["parameters"])
+    for n, v in alt.summary["parameters"].items():
+        if base_name(n) in names:
+            prm = next(p for p in effect.params if p.name == base_name(n))
+            params[n] = {**v, "mean": prm.neutral, "median": prm.neutral, "best": prm.neutral, "sd": None,
+                         "interval90": None, "note": (v.get("note", "") + "; refit ended below the model without the "
+                                                      "effect (log L %.1f < %.1f): shown at the neutral value"
+                                                      % (alt.loglik, current.loglik)).lstrip("; ")}
+    return ModelFit(alt.name, alt.effects, current.union, current.result, {**current.summary, "parameters": params},
+                    current.loglik, current.residuals, current.rmse, current.videos, current.criticism)
+
+
+def compare(current: ModelFit, alt: ModelFit, effect: Effect, n_coords: int) -> dict:
+    """Test ``alt`` (= current + effect, ``n_coords`` more coordinates) against ``current``:
+    LR (boundary-corrected) for an effect with parameters, Vuong's test for a structural one."""
     lr = 2.0 * (alt.loglik - current.loglik)
     if effect.params:
-        boundary = len(effect.params) == 1 and effect.params[0].one_sided
-        p = lr_pvalue(lr, len(effect.params), boundary)
-        test = "likelihood ratio, 0.5 chi2(0) + 0.5 chi2(1)" if boundary else f"likelihood ratio, chi2({len(effect.params)})"
+        boundary = n_coords == 1 and effect.params[0].one_sided
+        p = lr_pvalue(lr, n_coords, boundary)
+        test = "likelihood ratio, 0.5 chi2(0) + 0.5 chi2(1)" if boundary else f"likelihood ratio, chi2({n_coords})"
         z = None
     else:
         z, p = vuong_test(alt.residuals, current.residuals)
         test = "Vuong (non-nested)"
+    params = {n: v for n, v in alt.summary["parameters"].items() if base_name(n) in {q.name for q in effect.params}}
     return {"effect": effect.name, "model": alt.name, "lr": float(lr), "delta_loglik": float(alt.loglik - current.loglik),
             "p_value": float(p), "test": test, "vuong_z": z, "rmse_before": current.rmse, "rmse_after": alt.rmse,
             "rmse_drop": float(1.0 - alt.rmse / current.rmse) if current.rmse > 0 else 0.0,
-            "parameters": {prm.name: alt.summary["parameters"][prm.name] for prm in effect.params},
-            "looks_like_noise": bool(alt.criticism.get("looks_like_noise", False))}
+            "parameters": params, "looks_like_noise": bool(alt.criticism.get("looks_like_noise", False))}
 
 
-def diagnose(scene: Scene, obs: Observation, settings: DiagnoseSettings = DiagnoseSettings(), *,
-             seed: int = 0, progress=None) -> Diagnosis:
-    """Run the criticism loop on one observation (module docstring).
+def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observation],
+             settings: DiagnoseSettings = DiagnoseSettings(), *, seed: int = 0, progress=None) -> Diagnosis:
+    """Run the criticism loop on one observation, or on several videos of one setup (module docstring).
 
     Args:
-        scene: the scene.
-        obs: the observation (from :func:`galileo_jax.observe.observe` or a simulation).
+        scene: the scene, or one scene per video.
+        obs: the observation (from :func:`galileo_jax.observe.observe` or a simulation), or a
+            list of them: a joint diagnosis (parameters shared by name, ``v0`` and
+            ``settings.per_video`` per video).
         settings: :class:`DiagnoseSettings`.
         seed: random seed of the multi-start points.
         progress: optional callable(str) told what is being done.
@@ -325,45 +482,59 @@ def diagnose(scene: Scene, obs: Observation, settings: DiagnoseSettings = Diagno
         :class:`Diagnosis`.
 
     Raises:
-        GalileoError: unknown candidate names; ValueError from the problem setup.
+        GalileoError: unknown candidate names; ValueError from the problem setup or a
+            mismatch between the numbers of scenes and observations.
     """
-    from galileo_jax import criticism
-
+    observations = [obs] if isinstance(obs, Observation) else list(obs)
+    scenes = [scene] * len(observations) if isinstance(scene, Scene) else list(scene)
+    if len(scenes) != len(observations) or not observations:
+        raise ValueError(f"need one scene per video: got {len(scenes)} scenes and {len(observations)} observations")
     say = progress or (lambda msg: None)
     key = jax.random.PRNGKey(seed)
     t0 = time.perf_counter()
     timings = {}
+    per_scene = [candidate_effects(s, settings.candidates) for s in scenes]
+    all_candidates = tuple(e for e in per_scene[0] if all(e in c for c in per_scene[1:]))
+    parametric = [e for e in all_candidates if e.params]
+    structural = [e for e in all_candidates if not e.params]
     say("fitting the base model")
-    current = fit_model(scene, obs, (), settings, key)
+    union = Union(scenes, observations, parametric, settings)
+    current = fit_model(union, (), settings, key)
     fits = [current]
     timings["base_fit_s"] = time.perf_counter() - t0
-    all_candidates = candidate_effects(scene, settings.candidates)
     m = max(len(all_candidates), 1)
     threshold = settings.alpha / m
     rounds, added, final_index = [], [], 0
+    current_union = union
     for rnd in range(settings.max_effects):
         candidates = [e for e in all_candidates if e.name not in added]
         if not candidates:
             break
         t = time.perf_counter()
         say(f"screening {len(candidates)} candidate effects")
-        screen = screen_candidates(current, candidates, settings)
-        order = []
-        for row in screen:
-            if row["effect"] not in order:
-                order.append(row["effect"])
+        screen = screen_candidates(current_union, current, [e for e in candidates if e.params], settings)
+        order = list(dict.fromkeys(row["effect"] for row in screen))
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
         tests = []
         for i, name in enumerate(chosen):
             effect = available_effects()[name]
             say(f"refitting with {name} ({i + 1}/{len(chosen)})")
-            row = next((r for r in screen if r["effect"] == name), None)
-            alt = fit_model(scene, obs, tuple(added) + (name,), settings, jax.random.fold_in(key, 100 * rnd + i),
-                            init=_refit_init(current, effect, row), starts=settings.refit_starts,
+            k = jax.random.fold_in(key, 100 * rnd + i)
+            if effect.params:
+                alt_union = current_union
+                init = _refit_init(alt_union, current, effect, screen)
+                n_coords = len(alt_union.coords[name])
+            else:  # structural: its own union (the model's structure changes), same free effects
+                alt_union = Union(scenes, observations, (effect,) + tuple(parametric), settings)
+                init, n_coords = None, 0
+            alt = fit_model(alt_union, tuple(added) + (name,), settings, k, init=init,
+                            starts=settings.refit_starts if init is not None else settings.base_starts,
                             screen=settings.refit_screen)
+            if effect.params and alt.loglik < current.loglik:
+                alt = nested_floor(current, alt, effect)
             fits.append(alt)
-            test = compare(current, alt, effect)
+            test = compare(current, alt, effect, n_coords)
             test["fit_index"] = len(fits) - 1
             test["supported"] = bool(test["p_value"] < threshold and test["rmse_drop"] >= settings.min_rmse_drop)
             tests.append(test)
@@ -389,11 +560,13 @@ def diagnose(scene: Scene, obs: Observation, settings: DiagnoseSettings = Diagno
         rounds.append(rnd_info)
         added.append(win["effect"])
         current = fits[win["fit_index"]]
+        current_union = current.union
         final_index = win["fit_index"]
     timings["total_s"] = time.perf_counter() - t0
-    floor = criticism.noise_floor(obs)
+    n_used = [int(np.sum(o.mask)) * 2 * o.n_objects for o in observations]
+    floor = pooled_rms([criticism.noise_floor(o) for o in observations], n_used)
     decision = _decision(fits, rounds, added, final_index, floor, threshold)
-    return Diagnosis(scene, obs, floor, fits, rounds, decision, timings)
+    return Diagnosis(scenes, observations, floor, fits, rounds, decision, timings)
 
 
 def _decision(fits, rounds, added, final_index, floor, threshold) -> dict:

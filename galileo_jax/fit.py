@@ -5,8 +5,13 @@ Pipeline: read the video and scene -> track the objects -> velocity profiles -> 
 ``profiles.png``, ``overlay.mp4``) and predict beyond the video (where the objects stop,
 will object 1 slide?).
 
-The CLI is thin: it parses, calls :func:`run_fit` and prints. Every user mistake ends in
-one line on stderr and a non-zero exit status (see :mod:`galileo_jax.errors`).
+Several videos of one setup (``fit a.mp4 b.mp4 ...``) are fitted jointly
+(:func:`~galileo_jax.pipeline.run_joint_fit`): shared parameters, and the release-time
+correction, ``v0`` and ``--per-video`` names per video; the output folder then holds
+``result.json`` and ``profiles_<j>.png`` per video.
+
+The CLI is thin: it parses, calls :func:`run_fit` (or :func:`run_joint_fit`) and prints. Every
+user mistake ends in one line on stderr and a non-zero exit status (see :mod:`galileo_jax.errors`).
 """
 
 from __future__ import annotations
@@ -19,27 +24,25 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from galileo_jax.errors import GalileoError, VideoError, cli_entry  # noqa: E402
+from galileo_jax.cli import OneLineParser, videos_and_scenes  # noqa: E402
+from galileo_jax.errors import GalileoError, cli_entry  # noqa: E402
 
 METHODS = ("grad", "mh", "seed")
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports usage errors as one line through GalileoError."""
-
-    def error(self, message: str):  # noqa: D401 - argparse API
-        raise GalileoError(f"{message} (see python -m galileo_jax.fit --help)")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m galileo_jax.fit",
-                description="Estimate masses and friction coefficients from a video of objects on a ramp.")
-    p.add_argument("video", help="video file (mp4, avi, ...) of the ramp scene")
-    p.add_argument("--scene", help="scene file (YAML); default: the video's name with .yaml")
+    p = OneLineParser(prog="python -m galileo_jax.fit",
+                      description="Estimate masses and friction coefficients from a video of objects on a ramp "
+                                  "(several videos of one setup: one joint fit with shared parameters).")
+    p.add_argument("videos", nargs="+", metavar="VIDEO", help="video file(s) (mp4, avi, ...) of the ramp scene")
+    p.add_argument("--scene", action="append", help="scene file (YAML); default: each video's name with .yaml; "
+                                                    "give it once for all videos or once per video")
     p.add_argument("--method", default="grad", choices=METHODS,
                    help="grad: Levenberg-Marquardt (fast); mh: Metropolis-Hastings posterior; "
-                        "seed: the seed's coin-toss sampler (baseline)")
-    p.add_argument("--out", help="output folder (default: <video>_fit next to the video)")
+                        "seed: the seed's coin-toss sampler (baseline, one video)")
+    p.add_argument("--per-video", help="several videos: parameters fitted per video, comma-separated "
+                                       "(default: all shared except dt_release and v0)")
+    p.add_argument("--out", help="output folder (default: <first video>_fit next to it)")
     p.add_argument("--config", help="settings file (YAML, see configs/fit.yaml)")
     p.add_argument("--fps", type=float, help="frame rate override (frames per second)")
     p.add_argument("--chains", type=int, help="mh/seed: number of chains")
@@ -81,41 +84,36 @@ def _settings(args) -> "FitConfig":  # noqa: F821
     return cfg
 
 
-def _scene_path(video: Path, scene: str | None) -> Path:
-    from galileo_jax.errors import SceneError
-
-    if scene is not None:
-        return Path(scene)
-    path = video.with_suffix(".yaml")
-    if not path.is_file():
-        raise SceneError(f"no scene file for {video.name}: pass --scene FILE or put {path.name} next to the "
-                         f"video (see scenes/ramp_20.yaml)")
-    return path
-
-
 @cli_entry
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    video = Path(args.video)
-    if not video.exists():
-        raise VideoError(f"video {video} not found; check the path")
-    if not video.is_file():
-        raise VideoError(f"{video} is not a file; give a video file")
-    from galileo_jax.scene import load_scene
-
-    scene = load_scene(_scene_path(video, args.scene))
+    inputs = videos_and_scenes(args.videos, args.scene)
     cfg = _settings(args)
-    out = Path(args.out) if args.out else video.with_name(video.stem + "_fit")
+    per_video = tuple(s.strip() for s in (args.per_video or "").split(",") if s.strip())
+    if len(inputs) > 1 and args.method == "seed":
+        raise GalileoError("the seed's sampler fits one video; use --method grad or mh for several")
+    if per_video and len(inputs) == 1:
+        raise GalileoError("--per-video needs several videos")
+    first = inputs[0][0]
+    out = Path(args.out) if args.out else first.with_name(first.stem + "_fit")
 
     from galileo_jax.jaxcache import enable_compilation_cache
-    from galileo_jax.pipeline import run_fit
+    from galileo_jax.report.console import joint_summary_text, summary_text
 
     enable_compilation_cache()
     t0 = time.perf_counter()
+    if len(inputs) > 1:
+        from galileo_jax.pipeline import run_joint_fit
+
+        joint = run_joint_fit(inputs, cfg, method=args.method, out=out, fps=args.fps, seed=args.seed,
+                              per_video=per_video, progress=not args.quiet)
+        print(joint_summary_text(joint, elapsed=time.perf_counter() - t0))
+        return 0
+    from galileo_jax.pipeline import run_fit
+
+    video, scene = inputs[0]
     fit = run_fit(video, scene, cfg, method=args.method, out=out, fps=args.fps, seed=args.seed,
                   overlay=not args.no_video, progress=not args.quiet)
-    from galileo_jax.report.console import summary_text
-
     print(summary_text(fit, elapsed=time.perf_counter() - t0))
     return 0
 

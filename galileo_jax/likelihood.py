@@ -60,12 +60,18 @@ model error) rather than as the simulator's literal discretisation error. Lower 
 sharper but rougher posteriors; ``gaussian_ma1`` is the exact likelihood when tracking noise
 dominates all model error.
 
-All returned callables are pure JAX (jit/vmap-able) functions of the simulated profile; the
-observation-dependent parts (selected samples, whitening matrices) are precomputed in NumPy.
+The observation is DATA, not code. A :class:`Likelihood` is a JAX pytree: its arrays (the
+observed profile, the mask, the whitening matrices, the normalising constant) are leaves and
+only the kind and floor are static, so a jitted function that takes the likelihood as an
+argument compiles once for every video of the same length (``make_likelihood(...,
+n_samples=M)`` pads shorter profiles with masked-out samples). Residual vectors therefore have
+the fixed length T * M, with zeros at the samples outside the mask; :meth:`Likelihood.used`
+selects the used ones (for tests and reports). The whitening matrices are precomputed in NumPy.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -114,47 +120,76 @@ def seed_sequence(profile: jax.Array) -> jax.Array:
     return jnp.concatenate([profile[0::2].reshape(-1), profile[1::2].reshape(-1)])
 
 
-def emd_distance(a: jax.Array, b: jax.Array) -> jax.Array:
-    """The seed's "EMD" alignment cost D = M[n][n] between two 1-D sequences (n,).
+def emd_distance(a: jax.Array, b: jax.Array, length: jax.Array | int | None = None) -> jax.Array:
+    """The seed's "EMD" alignment cost D = M[n][n] between two 1-D sequences (L,).
 
     M[i][j] = |a[i-1] - b[j-1]| + min(M[i-1][j], M[i][j-1], M[i-1][j-1]), M[0][0] = 0 and
     M = inf elsewhere on the borders (dissertation 4.2.5). Each row is computed in one
     vectorised pass: with c_j the row's costs, a_j = c_j + min(M[i-1][j], M[i-1][j-1]) and
     S_j = c_1 + ... + c_j, M[i][j] = S_j + min_{k <= j} (a_k - S_k).
+
+    Args:
+        a, b: (L,) sequences.
+        length: n <= L, the number of leading elements that count (may be traced; default L).
+            M[n][n] depends only on the first n elements of each, so padding after them is ignored.
     """
     big = jnp.asarray(1e30, a.dtype)
-    n = b.shape[0]
-    row0 = jnp.concatenate([jnp.zeros(1, a.dtype), jnp.full(n, big)])
+    n_max = b.shape[0]
+    n = n_max if length is None else length
+    row0 = jnp.concatenate([jnp.zeros(1, a.dtype), jnp.full(n_max, big)])
 
-    def body(prev, ai):
+    def body(carry, inp):
+        prev, out = carry
+        i, ai = inp
         c = jnp.abs(ai - b)
         best_prev = jnp.minimum(prev[1:], prev[:-1])
         acc = c + best_prev
         s = jnp.cumsum(c)
         row = s + jax.lax.cummin(acc - s)
         row = jnp.minimum(row, big)
-        return jnp.concatenate([jnp.full(1, big), row]), None
+        out = jnp.where(i == n - 1, row[jnp.clip(n - 1, 0, n_max - 1)], out)
+        return (jnp.concatenate([jnp.full(1, big), row]), out), None
 
-    last, _ = jax.lax.scan(body, row0, a)
-    return last[-1]
-
-
-def emd_similarity(sim: jax.Array, obs: jax.Array, mask: np.ndarray) -> jax.Array:
-    """The seed's EMD similarity 1 - D between masked profiles (T, M) (higher is closer)."""
-    idx = np.flatnonzero(np.asarray(mask))
-    return 1.0 - emd_distance(seed_sequence(sim[:, idx]), seed_sequence(obs[:, idx]))
+    (_, out), _ = jax.lax.scan(body, (row0, big), (jnp.arange(n_max), a))
+    return out
 
 
-def rms_similarity(sim: jax.Array, obs: jax.Array, mask: np.ndarray) -> jax.Array:
+def masked_seed_sequence(profile: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """:func:`seed_sequence` of the masked samples of a (T, M) profile, with a traced mask.
+
+    Returns:
+        (sequence (T * M,), n): the seed's layout of the masked samples in its first
+        n = T * sum(mask) elements, zeros after them.
+    """
+    t, m_all = profile.shape
+    mask = jnp.asarray(mask, bool)
+    m = jnp.sum(mask)
+    order = jnp.argsort(~mask, stable=True)  # used samples first, in time order
+    comp = profile[:, order]
+    comp = jnp.concatenate([comp[0::2], comp[1::2]])  # (obj1 x, obj2 x, obj1 y, obj2 y)
+    k = jnp.arange(m_all)[None, :]
+    pos = jnp.where(k < m, jnp.arange(t)[:, None] * m + k, t * m_all)  # out of range: dropped
+    seq = jnp.zeros(t * m_all, profile.dtype).at[pos.reshape(-1)].set(comp.reshape(-1), mode="drop")
+    return seq, t * m
+
+
+def emd_similarity(sim: jax.Array, obs: jax.Array, mask: jax.Array) -> jax.Array:
+    """The seed's EMD similarity 1 - D between the masked samples of (T, M) profiles (higher is closer)."""
+    a, n = masked_seed_sequence(sim, mask)
+    b, _ = masked_seed_sequence(obs, mask)
+    return 1.0 - emd_distance(a, b, n)
+
+
+def rms_similarity(sim: jax.Array, obs: jax.Array, mask: jax.Array) -> jax.Array:
     """The seed's RMS similarity sqrt(mean(1 - |x - y| / (|x| + |y|))) over masked samples.
 
-    A pair with |x| + |y| = 0 counts as identical (similarity 1).
+    A pair with |x| + |y| = 0 counts as identical (similarity 1). ``mask`` (M,) may be traced.
     """
-    idx = np.flatnonzero(np.asarray(mask))
-    x, y = sim[:, idx], obs[:, idx]
+    x, y = sim, obs
+    mask = jnp.broadcast_to(jnp.asarray(mask, bool)[None, :], x.shape)
     den = jnp.abs(x) + jnp.abs(y)
     d = jnp.where(den > 0, 1.0 - jnp.abs(x - y) / jnp.where(den > 0, den, 1.0), 1.0)
-    return jnp.sqrt(jnp.mean(d))
+    return jnp.sqrt(jnp.sum(jnp.where(mask, d, 0.0)) / jnp.sum(mask))
 
 
 # ---------------------------------------------------------------------------- noise model
@@ -200,63 +235,101 @@ def whitening(cov: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 # ---------------------------------------------------------------------------- the likelihood
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["obs", "mask", "whiten", "log_norm"],
+                   meta_fields=["kind", "sd_model"])
 @dataclass(frozen=True, eq=False)
 class Likelihood:
     """A likelihood (or similarity) of one observation, as a pure function of the simulated profile.
 
-    Build with :func:`make_likelihood`. Call ``lik(sim_profile)`` with a (2n, N-1) simulated
-    profile (m/s) for a scalar; ``vmap`` for batches.
+    Build with :func:`make_likelihood`. Call ``lik(sim_profile)`` with a (T, M) simulated
+    profile (m/s) for a scalar; ``vmap`` for batches. A JAX pytree (module docstring): pass it
+    INTO jitted functions so that one compiled program serves every observation of the same size.
 
     Attributes:
-        kind: one of :data:`KINDS`.
-        idx: (m,) indices of the masked (used) velocity samples.
-        obs: (T, m) observed profile at those samples, m/s.
-        whiten: (T, m, m) whitening matrices W_i (Gaussian kinds; None otherwise), 1/(m/s).
-        log_norm: sum over traces of -logdet(C_i) / 2 - (m / 2) log 2 pi (Gaussian kinds).
-        sd_model: model-error floor in m/s used to build ``whiten``.
+        kind: one of :data:`KINDS` (static).
+        sd_model: model-error floor in m/s used to build ``whiten`` (static).
+        obs: (T, M) observed profile, m/s, zero at unused samples.
+        mask: (M,) bool, the samples that count (the fit window; padding is False).
+        whiten: Gaussian kinds: (T, M) inverse SDs 1/(m/s) (independent kinds) or (T, M, M)
+            whitening matrices W_i = L_i^-1 embedded at the used samples (``gaussian_ma1``);
+            zero at unused samples. Similarity kinds: (T, M) zeros.
+        log_norm: () sum over traces of -logdet(C_i) / 2 - (m / 2) log 2 pi (Gaussian kinds; 0 otherwise).
     """
 
     kind: str
-    idx: np.ndarray
-    obs: jax.Array
-    whiten: jax.Array | None
-    log_norm: float
     sd_model: float
+    obs: jax.Array
+    mask: jax.Array
+    whiten: jax.Array
+    log_norm: jax.Array
 
     @property
     def is_gaussian(self) -> bool:
         """True for the kinds that are Gaussian log-densities (and have residuals)."""
-        return self.whiten is not None
+        return self.kind in GAUSSIAN_KINDS
+
+    @property
+    def idx(self) -> np.ndarray:
+        """(m,) indices of the used velocity samples (NumPy; not for traced likelihoods)."""
+        return np.flatnonzero(np.asarray(self.mask))
 
     @property
     def n_residuals(self) -> int:
-        """Length T * m of :meth:`residuals`."""
+        """Length T * M of :meth:`residuals` (used and unused samples)."""
         return int(self.obs.shape[0] * self.obs.shape[1])
 
-    def residuals(self, sim: jax.Array) -> jax.Array:
-        """Standardised (whitened) residuals W_i (obs_i - sim_i), flattened to (T * m,).
+    @property
+    def n_used(self) -> int:
+        """Number T * m of residuals at used samples."""
+        return int(self.obs.shape[0] * self.idx.size)
 
-        For the Gaussian kinds log L = -|residuals|^2 / 2 + log_norm, so least squares on
-        them is maximum likelihood and their Gauss-Newton curvature J^T J is the Fisher
-        information. Python-side error: ValueError for the similarity kinds.
+    def used(self, r) -> np.ndarray:
+        """The used samples of residual vectors: (..., T * M) -> (..., T * m), NumPy, trace-major."""
+        r = np.asarray(r)
+        t, m = self.obs.shape
+        return r.reshape(r.shape[:-1] + (t, m))[..., self.idx].reshape(r.shape[:-1] + (-1,))
+
+    def used_residuals(self, sim) -> np.ndarray:
+        """Standardised residuals at the used samples, (T * m,) NumPy, of a (T, N) simulated
+        profile with N <= M (padded here): for reports and tests outside jit."""
+        sim = np.asarray(sim, np.float64)
+        sim = np.pad(sim, ((0, 0), (0, self.obs.shape[1] - sim.shape[1])))
+        return self.used(self.residuals(jnp.asarray(sim)))
+
+    def residuals(self, sim: jax.Array) -> jax.Array:
+        """Standardised (whitened) residuals W_i (obs_i - sim_i), flattened to (T * M,).
+
+        Zero at unused samples. For the Gaussian kinds log L = -|residuals|^2 / 2 + log_norm,
+        so least squares on them is maximum likelihood and their Gauss-Newton curvature
+        J^T J is the Fisher information.
+
+        Raises:
+            ValueError: (Python-side) for the similarity kinds.
         """
         if not self.is_gaussian:
-            raise ValueError(f"likelihood {self.kind!r} has no residuals; use one of gaussian_ma1, gaussian_iid, seed_gaussian")
-        r = self.obs - sim[:, self.idx]
+            raise ValueError(f"likelihood {self.kind!r} has no residuals; use one of {', '.join(GAUSSIAN_KINDS)}")
+        r = self.obs - sim[:, :self.obs.shape[1]]
+        if self.whiten.ndim == 2:
+            return (self.whiten * r).reshape(-1)
         return jnp.einsum("tij,tj->ti", self.whiten, r).reshape(-1)
 
     def __call__(self, sim: jax.Array) -> jax.Array:
-        """Log-likelihood (Gaussian kinds, nats) or similarity (emd, rms) of a (2n, N-1) profile."""
+        """Log-likelihood (Gaussian kinds, nats) or similarity (emd, rms) of a (T, M) profile."""
+        sim = sim[:, :self.obs.shape[1]]
         if self.kind == "emd":
-            return 1.0 - emd_distance(seed_sequence(sim[:, self.idx]), seed_sequence(self.obs))
+            return emd_similarity(sim, self.obs, self.mask)
         if self.kind == "rms":
-            all_mask = np.ones(self.obs.shape[1], bool)
-            return rms_similarity(sim[:, self.idx], self.obs, all_mask)
+            return rms_similarity(sim, self.obs, self.mask)
         w = self.residuals(sim)
         return -0.5 * jnp.sum(w**2) + self.log_norm
 
 
-def make_likelihood(observation: Observation, kind: str = DEFAULT_KIND, sd_model: float = DEFAULT_SD_MODEL) -> Likelihood:
+#: The kinds that are Gaussian log-densities.
+GAUSSIAN_KINDS = ("gaussian_ma1", "gaussian_iid", "seed_gaussian")
+
+
+def make_likelihood(observation: Observation, kind: str = DEFAULT_KIND, sd_model: float = DEFAULT_SD_MODEL,
+                    n_samples: int | None = None) -> Likelihood:
     """Precompute the likelihood of ``observation``.
 
     Args:
@@ -264,13 +337,15 @@ def make_likelihood(observation: Observation, kind: str = DEFAULT_KIND, sd_model
         kind: one of :data:`KINDS` (module docstring).
         sd_model: white model-error floor in m/s added in quadrature (Gaussian kinds except
             ``seed_gaussian``), sd_total^2 = sd_noise^2 + sd_model^2; 0 switches it off.
+        n_samples: M, the length of the likelihood's arrays (>= the profile's N - 1); the
+            samples after the profile's end are padding outside the mask. Default N - 1.
 
     Returns:
         A :class:`Likelihood`.
 
     Raises:
         ValueError: unknown kind, negative sd_model, empty mask, NaN in a masked observed
-            sample, or a trace with zero noise and zero model floor.
+            sample, a trace with zero noise and zero model floor, or n_samples < N - 1.
     """
     if kind not in KINDS:
         raise ValueError(f"unknown likelihood {kind!r}; choose one of {', '.join(KINDS)}")
@@ -278,16 +353,24 @@ def make_likelihood(observation: Observation, kind: str = DEFAULT_KIND, sd_model
         raise ValueError(f"sd_model must be >= 0 m/s, got {sd_model}")
     mask = np.asarray(observation.mask, bool)
     profile = np.asarray(observation.profile, np.float64)
-    if mask.shape != (profile.shape[1],):
-        raise ValueError(f"observation.mask has shape {mask.shape}, expected ({profile.shape[1]},) to match the profile")
+    t, n = profile.shape
+    if mask.shape != (n,):
+        raise ValueError(f"observation.mask has shape {mask.shape}, expected ({n},) to match the profile")
+    m_all = n if n_samples is None else int(n_samples)
+    if m_all < n:
+        raise ValueError(f"n_samples ({m_all}) is shorter than the profile ({n} samples)")
     idx = np.flatnonzero(mask)
     if idx.size == 0:
         raise ValueError("observation.mask selects no velocity samples; widen the fit window")
-    obs = profile[:, idx]
-    if not np.all(np.isfinite(obs)):
+    if not np.all(np.isfinite(profile[:, idx])):
         raise ValueError("observed profile has NaN/inf inside the fit window (mask); mask those samples out")
-    whiten, log_norm = None, 0.0
-    if kind in ("gaussian_ma1", "gaussian_iid", "seed_gaussian"):
+    full_mask = np.zeros(m_all, bool)
+    full_mask[idx] = True
+    obs = np.zeros((t, m_all))
+    obs[:, idx] = profile[:, idx]
+    log_norm = 0.0
+    whiten = np.zeros((t, m_all))
+    if kind in GAUSSIAN_KINDS:
         m = idx.size
         mats = []
         for sd_p in np.asarray(observation.position_sd, np.float64):
@@ -300,5 +383,12 @@ def make_likelihood(observation: Observation, kind: str = DEFAULT_KIND, sd_model
             w, logdet = whitening(cov)
             mats.append(w)
             log_norm += -0.5 * logdet - 0.5 * m * _LOG_2PI
-        whiten = jnp.asarray(np.stack(mats), jnp.float32)
-    return Likelihood(kind, idx, jnp.asarray(obs, jnp.float32), whiten, float(log_norm), float(sd_model))
+        if kind == "gaussian_ma1":
+            whiten = np.zeros((t, m_all, m_all))
+            for i, w in enumerate(mats):
+                whiten[i][np.ix_(idx, idx)] = w
+        else:
+            for i, w in enumerate(mats):
+                whiten[i, idx] = np.diag(w)
+    return Likelihood(kind, float(sd_model), jnp.asarray(obs), jnp.asarray(full_mask), jnp.asarray(whiten),
+                      jnp.asarray(log_norm))

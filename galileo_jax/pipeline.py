@@ -26,7 +26,6 @@ from galileo_jax.predict import RestPrediction, predict_rest, slides
 from galileo_jax.report.figures import profile_figure, trace_names
 from galileo_jax.report.results import package_versions, write_json
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import rollout, sample_poses
 
 
 @dataclass
@@ -72,25 +71,19 @@ def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
     return params, summary_dict["diagnostics"]
 
 
-def _grad_draws(res, space, key, n: int) -> np.ndarray:
-    """(n, d) draws of theta from the Gauss-Newton normal approximation N(z_hat, cov_z)."""
-    z = jax.random.multivariate_normal(key, jnp.asarray(res.z), jnp.asarray(res.cov_z), (n,))
-    return np.asarray(jax.vmap(space.from_unconstrained)(z))
-
-
 def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool):
     """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None)."""
     from galileo_jax.inference import summary
 
     k_run, k_sum = jax.random.split(key)
     if method == "grad":
-        from galileo_jax.inference.grad import fit_grad
+        from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
 
         res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
                        jacobian=cfg.grad.jacobian,
                        max_steps=cfg.grad.max_steps)
         params, diag = _with_estimate(summary.summarize_grad(res, problem.space), "mean")
-        draws = _grad_draws(res, problem.space, k_sum, cfg.prediction.draws)
+        draws = gauss_newton_draws(res, problem.space, k_sum, cfg.prediction.draws)
         return params, diag, np.asarray(res.theta), draws
     if method == "mh":
         from galileo_jax.inference.mh import run_mh
@@ -161,11 +154,7 @@ def _prediction(problem: Problem, scene: Scene, obs: Observation, theta_best: np
 
 def simulated_poses(problem: Problem, theta: np.ndarray) -> np.ndarray:
     """(N, n_objects, 3) simulated poses (x m, z m, pitch rad) at the video's frame times."""
-    obs = problem.observation
-    sim, n = problem.sim, problem.n_steps_full
-    phys = problem.space.physical(jnp.asarray(theta))
-    traj = jax.jit(lambda p: rollout(sim, p, n))(phys)
-    return np.asarray(sample_poses(traj, jnp.asarray(obs.frame_times - obs.release_time)))
+    return problem.poses(theta)
 
 
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
@@ -275,3 +264,114 @@ def identifiability_statement(scene: Scene) -> str:
     return ("Velocities depend on the masses only through phi = (m1 - m2)/(m1 + m2): m1 and m2 are NOT separately "
             "identifiable from the video (their values are the prior's, conditioned on phi). Give a known mass "
             "in the scene file to fix the scale.")
+
+
+# ---------------------------------------------------------------------------- several videos
+@dataclass
+class JointFitReport:
+    """Everything a joint fit of several videos produced.
+
+    Attributes:
+        videos, scenes, observations: per video.
+        method: "grad" or "mh".
+        per_video: the parameter names fitted per video (``name@j``); the rest are shared.
+        parameters: per joint coordinate the summary entry (estimate, 90% interval, ...).
+        diagnostics: method diagnostics.
+        simulated: per video (2n, N-1) simulated profile at the estimate, m/s.
+        bands: per video (2, 2n, N-1) 90% predictive band, m/s.
+        rmse: per video the per-trace RMSE dict (as :class:`FitReport`).
+        video_loglik: per video the log-likelihood at the estimate (nats).
+        outputs: paths written.
+        timings: seconds per stage.
+    """
+
+    videos: list[Path]
+    scenes: list[Scene]
+    method: str
+    observations: list[Observation]
+    per_video: tuple[str, ...]
+    parameters: dict
+    diagnostics: dict
+    simulated: list[np.ndarray]
+    bands: list[np.ndarray]
+    rmse: list[dict]
+    video_loglik: list[float]
+    outputs: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: str, out: Path,
+                  fps: float | None = None, seed: int = 0, per_video: tuple[str, ...] = (),
+                  progress: bool = True) -> JointFitReport:
+    """Fit several videos of one setup together (:class:`~galileo_jax.inference.joint.JointProblem`:
+    one set of shared parameters, ``dt_release``, ``v0`` and ``per_video`` names per video) and
+    write ``result.json`` and one ``profiles_<j>.png`` per video into ``out``.
+
+    Raises:
+        GalileoError: bad videos, tracking failures, an unknown method, or parameters the
+            videos cannot share (e.g. a ``per_video`` name that no video has).
+    """
+    from galileo_jax.inference import summary
+    from galileo_jax.inference.joint import JointProblem
+    from galileo_jax.observe import observe, read_video
+
+    if method not in ("grad", "mh"):
+        raise GalileoError(f"a joint fit of several videos supports --method grad or mh, not {method!r}")
+    timings = {}
+    t = time.perf_counter()
+    observations = [observe(read_video(v, fps_override=fps or s.video.fps), s, progress=progress) for v, s in inputs]
+    timings["observe_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    try:
+        problems = [Problem(s, o, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects)
+                    for (_, s), o in zip(inputs, observations)]
+        joint = JointProblem(problems, per_video)
+    except ValueError as err:
+        raise GalileoError(str(err)) from None
+    key = jax.random.PRNGKey(seed)
+    k_run, k_draw = jax.random.split(key)
+    if method == "grad":
+        from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
+
+        res = fit_grad(joint, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
+                       jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
+        theta_best, draws = np.asarray(res.theta), gauss_newton_draws(res, joint.space, k_draw, cfg.prediction.draws)
+    else:
+        from galileo_jax.inference.mh import run_mh
+
+        res = run_mh(joint, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
+                     progress=progress)
+        flat = res.theta.reshape(-1, res.theta.shape[-1])
+        idx = np.random.default_rng(seed).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
+        theta_best, draws = np.asarray(res.best_theta), flat[idx]
+    summ = summary.summarize_coordinates(res, method)
+    timings["inference_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    simulated = [np.asarray(s) for s in joint.simulate(theta_best)]
+    bands = [np.quantile(np.asarray(s), [0.05, 0.95], axis=0) for s in joint.simulate(draws)]
+    rmse = [_rmse(o, s) for o, s in zip(observations, simulated)]
+    video_ll = [float(x) for x in joint.video_log_likelihoods(theta_best)]
+    timings["simulate_s"] = time.perf_counter() - t
+    report = JointFitReport([v for v, _ in inputs], [s for _, s in inputs], method, observations, joint.space.per_video,
+                            summ["parameters"], summ["diagnostics"], simulated, bands, rmse, video_ll, timings=timings)
+    out.mkdir(parents=True, exist_ok=True)
+    for j, (obs, video) in enumerate(zip(observations, report.videos)):
+        times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
+        path = out / f"profiles_{j + 1}.png"
+        profile_figure(path, times, obs.profile, simulated[j], obs.velocity_sd, np.asarray(obs.mask, bool), bands[j],
+                       f"{video.name}: joint {method} fit of {len(inputs)} videos")
+        report.outputs[f"profiles_{j + 1}"] = str(path)
+    result = {
+        "videos": [str(v) for v in report.videos], "scenes": [s.model_dump(mode="json") for s in report.scenes],
+        "method": method, "shared": [n for n in joint.names if "@" not in n], "per_video": list(report.per_video),
+        "parameters": report.parameters, "identifiability": identifiability_statement(report.scenes[0]),
+        "diagnostics": report.diagnostics, "rmse_per_video_m_per_s": rmse, "loglik_per_video": video_ll,
+        "observations": [{"fps": o.fps, "n_frames": int(len(o.frame_times)), "release_time_s": o.release_time,
+                          "velocity_sd_m_per_s": o.velocity_sd, "fit_samples": int(np.sum(o.mask))} for o in observations],
+        "settings": {**cfg.model_dump(), "seed": seed}, "timings_s": timings, "versions": package_versions(),
+        "outputs": report.outputs,
+    }
+    path = out / "result.json"
+    write_json(path, result)
+    report.outputs["result"] = str(path)
+    return report

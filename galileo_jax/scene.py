@@ -204,10 +204,14 @@ class Priors(_Strict):
 class Simulation(_Strict):
     """Physics settings. ``substeps`` physics steps per video frame (8 at ~30 fps gives the
     1/240 s timestep measured to be within 0.01 m/s of a 1/1920 s reference); ``tail`` extra
-    seconds simulated after the video for the rest-position prediction."""
+    seconds simulated after the video for the rest-position prediction; ``fit_release``: fit
+    the release time (``dt_release``, s, a correction within +-``release_window`` s of the
+    tracker's estimate) along with the physics (see ``galileo_jax/params.py``)."""
 
     substeps: int = Field(default=8, ge=1, le=64)
     tail: float = Field(default=3.0, ge=0, le=30)
+    fit_release: bool = True
+    release_window: float = Field(default=0.2, gt=0, le=2.0)
 
 
 class Scene(_Strict):

@@ -223,7 +223,7 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
 def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_steps: int) -> Trajectory:
     """:func:`rollout` with the simulator's effects (kept apart so the base model's program is unchanged)."""
     effects, ctx, index = sim.effects, sim.ctx, sim.index
-    values = params.effects if params.effects is not None else jnp.asarray(neutral_values(effects), jnp.float32)
+    values = params.effects if params.effects is not None else jnp.asarray(neutral_values(effects), jnp.float64)
     vals = split_values(effects, values)
     updates = model_updates(effects, vals, model, ctx)
     if updates:

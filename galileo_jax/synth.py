@@ -95,6 +95,7 @@ from galileo_jax import render  # noqa: E402
 from galileo_jax.effects import BodyState, Effect, available_effects, check_applicable, get_effect  # noqa: E402
 from galileo_jax.effects.runtime import (apply_c_model, c_step, effect_param_names, frictions,  # noqa: E402
                                          has_step_hooks, make_context, neutral_values, split_values)
+from galileo_jax.cli import OneLineParser  # noqa: E402
 from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
 from galileo_jax.model import ModelIndex, build_model, object_start_pose  # noqa: E402
 from galileo_jax.scene import Scene, Video, load_scene, save_scene  # noqa: E402
@@ -797,13 +798,8 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
 # --------------------------------------------------------------------------- CLI
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, no usage dump
-        raise GalileoError(f"{message}; see python -m galileo_jax.synth --help")
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m galileo_jax.synth",
+    p = OneLineParser(prog="python -m galileo_jax.synth",
                 description="Render a synthetic ramp video (mp4) with its calibrated scene (.yaml) and "
                             "ground truth (.truth.json).")
     p.add_argument("--scene", required=True, help="scene YAML file (e.g. scenes/ramp_20.yaml)")

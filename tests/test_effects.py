@@ -130,7 +130,7 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose():
     scene = _scene(two=False, start=1.2)
     truth = PhysParams(jnp.array([0.5]), jnp.array([0.15]), jnp.array([3.0]))
     obs = simulated_observation(scene, truth, duration=1.5, position_sd=1e-3, effects=("test_cubic_drag",), seed=1)
-    settings = DiagnoseSettings(candidates=("test_cubic_drag",), refits=1, base_starts=2, base_screen=32, max_steps=25)
+    settings = DiagnoseSettings(candidates=("test_cubic_drag",), refits=1, base_starts=2, base_screen=32, max_steps=60)
     diag = diagnose(scene, obs, settings)
     d = diag.decision
     assert d["missing_effects"] == ["test_cubic_drag"], d["message"]

@@ -35,7 +35,8 @@ def _scene(angle, rolling=False):
     if rolling:
         obj["rolling"] = {"radius": h / 2, "inertia_ratio": 0.5}
     return scene_from_dict({"name": f"ramp_{angle:g}", "ramp": {"angle_deg": angle, "length": 3.5},
-                            "objects": [obj], "camera": {"pixels_per_metre": 1000.0}})
+                            "objects": [obj], "camera": {"pixels_per_metre": 1000.0},
+                            "simulation": {"fit_release": False}})
 
 
 def _problems(angles, k1, rolling=False, fit_effects=()):
@@ -111,6 +112,14 @@ def test_per_video_parameters_get_one_copy_per_video(problems):
     assert one.names == ("k1", "v0@0")
     assert np.allclose(one.space.log_prior(z1), probs[0].space.log_prior(z1))
     assert np.allclose(one.space.dtheta_dz(z1), probs[0].space.dtheta_dz(z1))
+    # the release-time correction is per video by default (each clip has its own release)
+    from galileo_jax.inference.joint import JointSpace
+    from galileo_jax.params import ParamSpace
+
+    spaces = [ParamSpace.from_scene(p.scene.model_copy(update={"simulation": p.scene.simulation.model_copy(
+        update={"fit_release": True})})) for p in problems]
+    js = JointSpace.from_spaces(spaces)
+    assert js.names == ("k1", "dt_release@0", "dt_release@1") and js.maps == ((0, 1), (0, 2))
     with pytest.raises(ValueError, match="per_video"):
         JointProblem(probs, per_video=["k3"])
     with pytest.raises(TypeError, match="Problem"):

@@ -70,8 +70,31 @@ def test_gaussian_ma1_matches_scipy_multivariate_normal():
     assert float(lik(jnp.asarray(sim))) == pytest.approx(expected, rel=1e-5)
     # residuals are the whitened residuals: log L = -|r|^2 / 2 + log_norm
     r = lik.residuals(jnp.asarray(sim))
-    assert r.shape == (4 * mask.sum(),)
+    assert r.shape == (4 * 12,)  # fixed length: every sample, zero where unused
+    assert np.all(np.asarray(r).reshape(4, 12)[:, ~mask] == 0)
+    assert lik.used(r).shape == (4 * mask.sum(),)
     assert float(-0.5 * jnp.sum(r**2) + lik.log_norm) == pytest.approx(expected, rel=1e-5)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_padding_and_traced_observation_give_the_same_value(kind):
+    """Padding a profile with unused samples changes nothing, and one jitted function of
+    (profile, likelihood) serves observations with different masks and values."""
+    mask = np.ones(12, bool)
+    mask[:2] = False
+    obs = make_obs(mask=mask)
+    sim = obs.profile + np.random.default_rng(5).normal(0, 0.03, obs.profile.shape)
+    plain = float(make_likelihood(obs, kind, 0.02)(jnp.asarray(sim)))
+    padded_lik = make_likelihood(obs, kind, 0.02, n_samples=20)
+    padded_sim = np.concatenate([sim, np.full((4, 8), 7.0)], axis=1)  # garbage in the padding
+    assert float(padded_lik(jnp.asarray(padded_sim))) == pytest.approx(plain, rel=1e-6)
+    fn = jax.jit(lambda s, lik: lik(s))
+    other = make_obs(mask=np.r_[np.zeros(5, bool), np.ones(7, bool)], seed=9)
+    other_lik = make_likelihood(other, kind, 0.02, n_samples=20)
+    assert float(fn(jnp.asarray(padded_sim), padded_lik)) == pytest.approx(plain, rel=1e-6)
+    expected_other = float(make_likelihood(other, kind, 0.02)(jnp.asarray(sim)))
+    assert float(fn(jnp.asarray(padded_sim), other_lik)) == pytest.approx(expected_other, rel=1e-6)
+    assert fn._cache_size() == 1  # one trace for both observations
 
 
 def test_velocity_covariance_matches_monte_carlo():
@@ -132,9 +155,9 @@ def test_likelihood_errors():
 
 
 # ---------------------------------------------------------------------------- parameter space
-def _scene(objects):
+def _scene(objects, fit_release=False):
     return scene_from_dict({"ramp": {"angle_deg": 20, "length": 0.6}, "objects": objects,
-                            "camera": {"pixels_per_metre": 1000}})
+                            "camera": {"pixels_per_metre": 1000}, "simulation": {"fit_release": fit_release}})
 
 
 BOX1 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.45}
@@ -151,6 +174,15 @@ def test_param_space_layouts():
         ParamSpace.from_scene(_scene([{**BOX1, "friction": 0.2}]))
     p = sp.physical(jnp.array([[0.2, 0.3, 0.7]]))
     assert np.allclose(p.mass, [[0.7, 0.3]]) and np.allclose(p.friction, [[0.2, 0.3]])
+    # the default scene also fits the release time: a uniform nuisance on +-release_window s
+    spr = ParamSpace.from_scene(_scene([BOX1, BOX2], fit_release=True))
+    assert spr.names == ("k1", "k2", "phi", "dt_release") and spr.n_physical == 4
+    j = spr.index("dt_release")
+    assert (spr.lower[j], spr.upper[j]) == (-0.2, 0.2)
+    assert float(spr.release_offset(jnp.array([0.2, 0.3, 0.1, -0.05]))) == pytest.approx(-0.05)
+    assert float(sp.release_offset(jnp.array([0.2, 0.3, 0.7]))) == 0.0
+    draws = np.asarray(spr.sample_prior(jax.random.key(0), 4000))[:, j]
+    assert draws.min() >= -0.2 and draws.max() <= 0.2 and stats.kstest((draws + 0.2) / 0.4, "uniform").pvalue > 1e-3
 
 
 def test_phi_prior_is_induced_by_uniform_masses():

@@ -6,9 +6,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from galileo_jax.inference.problem import BatchedAPI, ProblemData
 from galileo_jax.inference.mh import RWState, build_kernel, random_walk, run_mh
 from galileo_jax.inference.seed_mh import run_seed_mh
 from galileo_jax.inference.summary import summarize_mh
+from galileo_jax.likelihood import make_likelihood
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import scene_from_dict
@@ -17,7 +19,7 @@ from galileo_jax.simulate import PhysParams
 BOX1 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.45}
 BOX2 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.15}
 SCENE2 = scene_from_dict({"name": "ramp_20", "ramp": {"angle_deg": 20, "length": 0.6}, "objects": [BOX1, BOX2],
-                          "camera": {"pixels_per_metre": 1692.9}})
+                          "camera": {"pixels_per_metre": 1692.9}, "simulation": {"fit_release": False}})
 
 
 # ---------------------------------------------------------------------------- the kernel
@@ -70,19 +72,20 @@ def test_random_walk_rejects_bad_scale():
 
 
 # ---------------------------------------------------------------------------- driver on a toy problem
-class ToyProblem:
-    """Gaussian likelihood in theta = (k1, k2, phi); no simulator."""
+class ToyProblem(BatchedAPI):
+    """Gaussian likelihood in theta = (k1, k2, phi); no simulator. The mean and SD are its data."""
+
+    static_key = ("toy",)
+    max_batch = 64
 
     def __init__(self, mean, sd):
         self.space = ParamSpace.from_scene(SCENE2)
-        self.mean, self.sd = jnp.asarray(mean), jnp.asarray(sd)
+        self.data = (jnp.asarray(mean), jnp.asarray(sd))
 
-    def loglik_z(self, z):
+    def loglik_fn(self, z, data):
+        mean, sd = data
         th = self.space.from_unconstrained(z)
-        return -0.5 * jnp.sum(((th - self.mean) / self.sd) ** 2)
-
-    def map_batch(self, f, xs):
-        return jax.vmap(f)(xs)
+        return -0.5 * jnp.sum(((th - mean) / sd) ** 2)
 
 
 def test_run_mh_on_toy_posterior():
@@ -115,8 +118,11 @@ def test_run_mh_rejects_bad_arguments():
 
 
 # ---------------------------------------------------------------------------- the seed's sampler
-class ToySeedProblem:
-    """Profile = parameters held constant over time; observation at a known truth."""
+class ToySeedProblem(BatchedAPI):
+    """Profile = parameters held constant over time; observation at a known truth. Its own engine."""
+
+    static_key = ("toy_seed",)
+    max_batch = 64
 
     def __init__(self, truth):
         self.scene = SCENE2
@@ -126,7 +132,9 @@ class ToySeedProblem:
         t = np.arange(m + 1) / 30.0
         self.observation = Observation(t, np.zeros((m + 1, 2, 2)), np.zeros((m + 1, 2, 2)), np.asarray(prof),
                                        np.full(4, 1e-3), np.ones(m, bool), 0.0, 30.0, np.ones(2, bool))
-        self.likelihood = type("L", (), {"sd_model": 0.05})()
+        self.likelihood = make_likelihood(self.observation)
+        self.data = ProblemData(jnp.asarray(t), jnp.asarray(0.0), self.likelihood)
+        self.engine = self
         self.m = m
 
     @staticmethod
@@ -134,11 +142,8 @@ class ToySeedProblem:
         phi = (p.mass[0] - p.mass[1]) / (p.mass[0] + p.mass[1])
         return jnp.stack([p.friction[0], phi, p.friction[1], 0.0 * phi])[:, None] * jnp.ones(m)
 
-    def profile_physical(self, p):
+    def profile_physical(self, p, data):
         return self._profile(p, self.m)
-
-    def map_batch(self, f, xs):
-        return jax.vmap(f)(xs)
 
 
 def test_seed_sampler_rules():

@@ -1,7 +1,10 @@
 """Inference: the posterior over the scene's identifiable parameters given an observed profile.
 
 * :class:`Problem` (problem.py): simulator + observation + parameter space + likelihood,
-  batched and jitted (one vmapped MJX rollout per density call).
+  batched and jitted (one vmapped MJX rollout per density call); the observation is data
+  passed into the compiled functions, which every video of a scene shares.
+* :class:`JointProblem` (joint.py): several videos with shared and per-video parameters.
+* :class:`FixedProblem` (fixed.py): some parameters held at given values (``fit_grad(..., fixed=)``).
 * :func:`run_mh` (mh.py): adaptive random-walk Metropolis-Hastings, many chains at once,
   BlackJAX-style kernel (:class:`RWState`, :class:`RWInfo`, :func:`build_kernel`).
 * :func:`run_seed_mh` (seed_mh.py): the seed's coin-toss sampler, as a baseline.
@@ -18,12 +21,14 @@ Typical use::
     seed = run_seed_mh(problem, jax.random.key(2))        # seed baseline: 16 x 75, coin toss
 """
 
+from galileo_jax.inference.fixed import FixedProblem
 from galileo_jax.inference.grad import GradResult, fit_grad
+from galileo_jax.inference.joint import JointProblem
 from galileo_jax.inference.mh import MHResult, RWInfo, RWState, build_kernel, random_walk, run_mh
 from galileo_jax.inference.problem import Problem, fd_jacobian_fn, simulated_observation
 from galileo_jax.inference.seed_mh import SeedResult, run_seed_mh
 from galileo_jax.inference.summary import summarize_grad, summarize_mh
 
-__all__ = ["Problem", "fd_jacobian_fn", "simulated_observation", "run_mh", "MHResult", "RWState", "RWInfo",
+__all__ = ["Problem", "JointProblem", "FixedProblem", "fd_jacobian_fn", "simulated_observation", "run_mh", "MHResult", "RWState", "RWInfo",
            "build_kernel", "random_walk", "run_seed_mh", "SeedResult", "fit_grad", "GradResult",
            "summarize_mh", "summarize_grad"]

@@ -33,17 +33,19 @@ methods ARE ParamSpace's (borrowed functions that only read ``names``/``lower``/
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from typing import Any
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from galileo_jax.inference.problem import DEFAULT_FD_STEP, Problem, fd_jacobian_fn
-from galileo_jax.params import ParamSpace
+from galileo_jax.inference.problem import DEFAULT_FD_STEP, BatchedAPI, Problem, check_residual_args, fd_jacobian_fn
+from galileo_jax.params import BoxSpaceMethods, ParamSpace
 
-#: Parameters that are per-video unless stated otherwise: the ``initial_push`` release speed.
-DEFAULT_PER_VIDEO = ("v0",)
+#: Parameters that are per-video unless stated otherwise: the release-time correction and the
+#: ``initial_push`` release speed (every release by hand differs).
+DEFAULT_PER_VIDEO = ("dt_release", "v0")
 
 
 def joint_name(name: str, video: int) -> str:
@@ -52,7 +54,7 @@ def joint_name(name: str, video: int) -> str:
 
 
 @dataclass(frozen=True, eq=False)
-class JointSpace:
+class JointSpace(BoxSpaceMethods):
     """The joint parameter space of several videos (build with :meth:`from_spaces`).
 
     Attributes:
@@ -75,16 +77,6 @@ class JointSpace:
     per_video: tuple[str, ...]
     mass_prior: tuple[float, float] | None
 
-    # ParamSpace's own transform code (reads only names, lower, upper, kinds, mass_prior).
-    dim = ParamSpace.dim
-    index = ParamSpace.index
-    _bounds = ParamSpace._bounds
-    from_unconstrained = ParamSpace.from_unconstrained
-    to_unconstrained = ParamSpace.to_unconstrained
-    log_abs_det_jacobian = ParamSpace.log_abs_det_jacobian
-    dtheta_dz = ParamSpace.dtheta_dz
-    log_prior = ParamSpace.log_prior
-    as_dict = ParamSpace.as_dict
 
     @classmethod
     def from_spaces(cls, spaces: Sequence[ParamSpace], per_video: Iterable[str] = ()) -> JointSpace:
@@ -164,7 +156,7 @@ class JointLikelihood:
     @property
     def log_norm(self) -> float:
         """Sum of the videos' normalising constants: log L = -|r|^2 / 2 + log_norm."""
-        return float(sum(lik.log_norm for lik in self.likelihoods))
+        return float(sum(float(lik.log_norm) for lik in self.likelihoods))
 
     @property
     def is_gaussian(self) -> bool:
@@ -184,8 +176,13 @@ class JointLikelihood:
         """Number of residuals of each video (the blocks of the joint residual vector)."""
         return tuple(lik.n_residuals for lik in self.likelihoods)
 
+    def used(self, r) -> np.ndarray:
+        """The used samples of joint residual vectors (..., n_residuals) -> (..., n_used), NumPy."""
+        blocks = np.split(np.asarray(r), np.cumsum(self.sizes)[:-1], axis=-1)
+        return np.concatenate([lik.used(b) for lik, b in zip(self.likelihoods, blocks)], axis=-1)
 
-class JointProblem:
+
+class JointProblem(BatchedAPI):
     """Several videos of one setup fitted together (module docstring).
 
     Arguments:
@@ -197,17 +194,11 @@ class JointProblem:
         ValueError: see :meth:`JointSpace.from_spaces`.
         TypeError: an entry that is not a Problem.
 
-    Interface (as :class:`Problem`, for ``fit_grad``): ``space``, ``dim``, ``names``,
-    ``likelihood`` (``log_norm``, ``is_gaussian``), ``residual_fn``, ``log_likelihood``,
+    Interface (as :class:`Problem`, for ``fit_grad`` and ``run_mh``): ``space``, ``dim``,
+    ``names``, ``data`` (the tuple of the videos' data), ``static_key``, ``likelihood``
+    (``log_norm``, ``is_gaussian``), ``loglik_fn``, ``residual_fn``, ``log_likelihood``,
     ``log_density``, ``residuals``, ``simulate``, ``map_batch``.
     """
-
-    # The batched API only needs space, loglik_z, max_batch and _jit_cache: share Problem's.
-    map_batch = Problem.map_batch
-    _jitted = Problem._jitted
-    log_density_fn = Problem.log_density_fn
-    log_density = Problem.log_density
-    log_likelihood = Problem.log_likelihood
 
     def __init__(self, problems: Sequence[Problem], per_video: Iterable[str] = ()):
         problems = tuple(problems)
@@ -218,78 +209,69 @@ class JointProblem:
         self.space = JointSpace.from_spaces([p.space for p in problems], per_video)
         self.likelihood = JointLikelihood(tuple(p.likelihood for p in problems))
         self.max_batch = min(p.max_batch for p in problems)
-        self._jit_cache: dict = {}
+        self.data = tuple(p.data for p in problems)
+        self.static_key = ("joint", tuple(p.static_key for p in problems), self.space.names)
+        self._engines = tuple(p.engine for p in problems)
+        self._maps = tuple(jnp.asarray(m, jnp.int32) for m in self.space.maps)
 
     @property
     def n_videos(self) -> int:
         return len(self.problems)
-
-    @property
-    def dim(self) -> int:
-        return self.space.dim
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return self.space.names
 
     def theta_for(self, j: int, theta: jax.Array) -> jax.Array:
         """Video ``j``'s theta (..., d_j) from the joint theta (..., D)."""
         return self.space.theta_for(j, theta)
 
     # ------------------------------------------------------------------ pure building blocks
-    def _profile(self, j: int, theta: jax.Array, full: bool = False) -> jax.Array:
-        p = self.problems[j]
-        return p.profile_physical(p.space.physical(self.theta_for(j, theta)), full=full)
+    # (they read only the engines, the space and the data argument)
+    def _profile(self, j: int, theta: jax.Array, data) -> jax.Array:
+        return self._engines[j].profile_theta(jnp.asarray(theta)[..., self._maps[j]], data[j])
 
-    def video_loglik_theta(self, theta: jax.Array) -> jax.Array:
+    def video_loglik_theta(self, theta: jax.Array, data) -> jax.Array:
         """Unbatched per-video log-likelihoods (n_videos,) at joint theta (D,); -inf where not finite."""
         out = []
-        for j, p in enumerate(self.problems):
-            ll = p.likelihood(self._profile(j, theta))
+        for j in range(self.n_videos):
+            ll = data[j].likelihood(self._profile(j, theta, data))
             out.append(jnp.where(jnp.isfinite(ll), ll, -jnp.inf))
         return jnp.stack(out)
 
-    def loglik_z(self, z: jax.Array) -> jax.Array:
+    def loglik_fn(self, z: jax.Array, data) -> jax.Array:
         """Unbatched joint log-likelihood at z (D,): the sum over videos (pure)."""
-        return jnp.sum(self.video_loglik_theta(self.space.from_unconstrained(z)))
+        return jnp.sum(self.video_loglik_theta(self.space.from_unconstrained(z), data))
 
-    def residuals_theta(self, theta: jax.Array) -> jax.Array:
+    def residuals_theta(self, theta: jax.Array, data) -> jax.Array:
         """Unbatched concatenated standardised residuals at joint theta (D,) (pure)."""
-        return jnp.concatenate([p.likelihood.residuals(self._profile(j, theta)) for j, p in enumerate(self.problems)])
+        return jnp.concatenate([data[j].likelihood.residuals(self._profile(j, theta, data))
+                                for j in range(self.n_videos)])
 
-    def residual_fn(self, jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP) -> Callable[[jax.Array], jax.Array]:
-        """Pure z (D,) -> concatenated standardised residuals of all videos, with an AD or
-        central-difference (``fd_jacobian_fn`` on the joint function) derivative.
+    def residual_fn(self, jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP) -> Callable[[jax.Array, Any], jax.Array]:
+        """Pure ``f(z (D,), data)`` -> concatenated standardised residuals of all videos, with an
+        AD or central-difference (``fd_jacobian_fn`` on the joint function) derivative.
 
         Raises:
             ValueError: unknown ``jacobian``, non-positive step, or a non-Gaussian likelihood.
         """
-        if jacobian not in ("fd", "ad"):
-            raise ValueError(f"jacobian must be 'fd' or 'ad', got {jacobian!r}")
-        if not fd_step > 0:
-            raise ValueError(f"fd_step must be > 0, got {fd_step}")
-        if not self.likelihood.is_gaussian:
-            raise ValueError(f"likelihood {self.likelihood.kind!r} has no residuals; least squares needs a Gaussian kind")
+        check_residual_args(jacobian, fd_step, self.likelihood)
 
-        def res(z):
-            return self.residuals_theta(self.space.from_unconstrained(z))
+        def res(z, data):
+            return self.residuals_theta(self.space.from_unconstrained(z), data)
 
         return fd_jacobian_fn(res, fd_step) if jacobian == "fd" else res
 
     # ------------------------------------------------------------------ jitted batched API
     def video_log_likelihoods(self, theta: jax.Array) -> np.ndarray:
         """Per-video log-likelihoods at joint theta: (D,) -> (n_videos,), (B, D) -> (B, n_videos)."""
-        theta = jnp.asarray(theta, jnp.float32)
-        f = self._jitted("video_ll", lambda tb: self.map_batch(self.video_loglik_theta, tb))
-        return np.asarray(f(theta[None])[0] if theta.ndim == 1 else f(theta))
+        theta = jnp.asarray(theta, jnp.float64)
+        f = self.jitted("video_ll", lambda tb, data: self.map_batch(lambda t: self.video_loglik_theta(t, data), tb))
+        return np.asarray(f(theta[None], self.data)[0] if theta.ndim == 1 else f(theta, self.data))
 
     def residuals(self, theta: jax.Array) -> jax.Array:
         """Concatenated standardised residuals at joint theta: (D,) -> (n,), (B, D) -> (B, n)."""
-        theta = jnp.asarray(theta, jnp.float32)
+        theta = jnp.asarray(theta, jnp.float64)
         if not self.likelihood.is_gaussian:
             raise ValueError(f"likelihood {self.likelihood.kind!r} has no residuals")
-        f = self._jitted("residuals", lambda tb: self.map_batch(self.residuals_theta, tb))
-        return f(theta[None])[0] if theta.ndim == 1 else f(theta)
+        f = self.jitted("residuals", lambda tb, data: self.map_batch(lambda t: self.residuals_theta(t, data), tb))
+        return f(theta[None], self.data)[0] if theta.ndim == 1 else f(theta, self.data)
 
     def split_residuals(self, r) -> list[np.ndarray]:
         """Split a concatenated residual vector (..., n) into the videos' blocks."""
@@ -299,5 +281,5 @@ class JointProblem:
     def simulate(self, theta: jax.Array) -> list[jax.Array]:
         """Simulated profiles over each WHOLE video at joint theta: a list with, per video,
         (2n_j, N_j - 1) for theta (D,), or (B, 2n_j, N_j - 1) for theta (B, D), m/s."""
-        theta = jnp.asarray(theta, jnp.float32)
+        theta = jnp.asarray(theta, jnp.float64)
         return [p.simulate(self.theta_for(j, theta)) for j, p in enumerate(self.problems)]

@@ -43,6 +43,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.inference.problem import map_batch
+
 #: Default target acceptance rate during warm-up (Roberts & Rosenthal 2001).
 TARGET_ACCEPTANCE = 0.3
 
@@ -203,6 +205,22 @@ def _pooled_within_cov(x: np.ndarray) -> np.ndarray:
     return np.einsum("cni,cnj->ij", dev, dev) / max(c * (n - 1), 1)
 
 
+def _chunk_runner(problem, chunk: int) -> Callable:
+    """Pure ``run(key, state, chol, beta, data)``: ``chunk`` tempered MH steps (reads only static parts)."""
+    kernel = build_kernel()
+    space, loglik_fn, max_batch = problem.space, problem.loglik_fn, problem.max_batch
+
+    def run(key, state, chol, beta, data):
+        def logdensity_fn(zb):
+            ll = map_batch(lambda z: loglik_fn(z, data), zb, max_batch)
+            lp = space.log_prior(zb) + beta * ll
+            return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+
+        return sample_chunk(kernel, logdensity_fn, key, state, chol, chunk)
+
+    return run
+
+
 def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 200, n_samples: int = 200,
            init_theta: np.ndarray | None = None, init_sd: float = 0.1, target_acceptance: float = TARGET_ACCEPTANCE,
            anneal: float = 0.5, beta0: float = 0.01, resample_ess: float = 0.9, reset_threshold: float = 10.0,
@@ -211,8 +229,8 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
     """Sample the posterior of ``problem`` with adaptive random-walk MH (module docstring).
 
     Arguments:
-        problem: a :class:`~galileo_jax.inference.problem.Problem` (uses ``space``,
-            ``loglik_z`` and ``map_batch``).
+        problem: a :class:`~galileo_jax.inference.problem.Problem` (or a joint or fixed
+            problem: uses ``space``, ``loglik_fn``, ``max_batch``, ``data`` and ``jitted``).
         rng_key: PRNG key.
         n_chains: chains advanced together (one batched density call per step).
         n_warmup: warm-up steps (annealing and adaptation; discarded).
@@ -264,23 +282,16 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
         lo, hi = np.asarray(space.lower), np.asarray(space.upper)
         if not np.all((th > lo) & (th < hi)):
             raise ValueError(f"init_theta is outside the bounds {list(zip(space.lower, space.upper))}")
-        z0 = jnp.broadcast_to(space.to_unconstrained(jnp.asarray(th, jnp.float32)), (n_chains, d))
+        z0 = jnp.broadcast_to(space.to_unconstrained(jnp.asarray(th, jnp.float64)), (n_chains, d))
         if th.ndim == 1:
             z0 = z0 + init_sd * jax.random.normal(k_jit, (n_chains, d))
-    z0 = jnp.asarray(z0, jnp.float32)
+    z0 = jnp.asarray(z0, jnp.float64)
 
-    kernel = build_kernel()
-
-    def tempered(beta):
-        def logdensity_fn(zb):
-            ll = problem.map_batch(problem.loglik_z, zb)
-            lp = space.log_prior(zb) + beta * ll
-            return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
-        return logdensity_fn
-
-    # One compiled program for warm-up and sampling (beta and the proposal are arguments).
-    run_chunk = jax.jit(lambda key, state, chol, beta: sample_chunk(kernel, tempered(beta), key, state, chol, chunk))
-    log_prior = jax.jit(space.log_prior)
+    # One compiled program for warm-up and sampling (beta, the proposal and the data are
+    # arguments), shared by every problem with the same static key.
+    run_chunk_data = problem.jitted(("mh_chunk", chunk), _chunk_runner(problem, chunk))
+    run_chunk = lambda key, state, chol, beta: run_chunk_data(key, state, chol, beta, problem.data)  # noqa: E731
+    log_prior = problem.jitted("log_prior", space.log_prior)
 
     n_warm_chunks = math.ceil(n_warmup / chunk)
     n_samp_chunks = math.ceil(n_samples / chunk)
@@ -294,7 +305,7 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
     t_start = time.perf_counter()
     # The initial density is -inf, so the first step accepts the first (finite) proposal
     # around z0: no separate compiled evaluation is needed.
-    state = RWState(z0, jnp.full((n_chains,), -jnp.inf, jnp.float32))
+    state = RWState(z0, jnp.full((n_chains,), -jnp.inf, jnp.float64))
     sigma = np.eye(d) * init_sd**2 * d / 2.38**2  # s = 2.38 / sqrt(d) then gives SD init_sd
     log_s = math.log(2.38 / math.sqrt(d))
     beta = 1.0
@@ -304,7 +315,7 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
 
     def chol_of(sig, ls):
         cov = math.exp(2 * ls) * sig + 1e-10 * np.eye(d)
-        return jnp.asarray(np.linalg.cholesky(cov), jnp.float32)
+        return jnp.asarray(np.linalg.cholesky(cov), jnp.float64)
 
     def set_beta(state, old, new):
         """Move the chains from beta = old to new: SMC reweighting by exp((new - old) log lik),
@@ -332,7 +343,7 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
         new_beta = beta0 ** (1.0 - c / n_anneal) if c < n_anneal else 1.0
         state = set_beta(state, beta, new_beta)
         beta = new_beta
-        state, (trace, info) = run_chunk(keys[c], state, chol_of(sigma, log_s), jnp.float32(beta))
+        state, (trace, info) = run_chunk(keys[c], state, chol_of(sigma, log_s), jnp.float64(beta))
         acc = np.asarray(info.acceptance_rate)[1 if c == 0 else 0:]  # (chunk, chains)
         warm_acc = float(acc.mean())
         log_s += float(np.clip(0.7 * math.log((warm_acc + 0.01) / (target_acceptance + 0.01)), -2.0, 1.0))
@@ -362,7 +373,7 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
     zs, lds, accs = [], [], []
     t_samp = time.perf_counter()
     for c in range(n_samp_chunks):
-        state, (trace, info) = run_chunk(keys[n_warm_chunks + c], state, chol, jnp.float32(1.0))
+        state, (trace, info) = run_chunk(keys[n_warm_chunks + c], state, chol, jnp.float64(1.0))
         zs.append(np.asarray(trace.position))
         lds.append(np.asarray(trace.logdensity))
         accs.append(np.asarray(info.is_accepted))

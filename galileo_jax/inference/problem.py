@@ -1,12 +1,29 @@
-"""An inference problem: simulator + observation + parameter space + likelihood, jitted once.
+"""An inference problem: simulator + observation + parameter space + likelihood.
 
 Coordinates: ``theta`` (d,) are the identifiable parameters of :class:`~galileo_jax.params.ParamSpace`
 (e.g. k1, k2, phi); ``z`` (d,) their unconstrained transform (samplers and optimisers work in z).
 
+Code and data are kept apart, so that one compiled program serves many videos:
+
+* :class:`Engine` is the static part: the MJX simulator of the scene (with its effects), the
+  parameter space, the likelihood kind and the rollout lengths. Its methods are the pure
+  functions of the problem, ``f(z, data)``; they never read an observation.
+* :class:`ProblemData` is the observation-dependent part, a pytree of arrays (frame times,
+  release time, the :class:`~galileo_jax.likelihood.Likelihood` with the observed profile and
+  its whitening), passed INTO the jitted functions as an argument.
+
+Every :class:`Problem` of the same scene, effects and (bucketed) video length
+shares one Engine and one set of jitted functions (module-level caches), so a second video of
+a scene costs no tracing or compilation in the same process, and JAX's persistent cache serves
+the next process. Shapes are bucketed: the profile is padded to a multiple of
+:data:`PAD_SAMPLES` samples (padding is outside the likelihood's mask) and rollouts cover a
+whole number of :data:`PAD_SAMPLES`-frame blocks after the release.
+
 Every batched entry point runs ONE vmapped MJX rollout per call (chunked with
-``jax.lax.map(..., batch_size=max_batch)`` above ``max_batch`` rollouts: very large vmapped
-batches were reported to hang XLA on CPU). The rollout covers the fit window only (up to the
-last masked velocity sample); :meth:`Problem.simulate` covers the whole video.
+``jax.lax.map(..., batch_size=max_batch)`` above ``max_batch`` rollouts: see
+:data:`DEFAULT_MAX_BATCH`). Every rollout covers the whole padded video from t = 0 (plus the
+release-time window): its length depends on the padded number of frames only, not on the
+release time or the fit window, so that videos of one scene and length share programs.
 
 Finite-difference Jacobians. AD through MJX contacts misses how parameters move event times
 (the end of the ramp, the impact), so the residual Jacobian can be wrong in sign.
@@ -18,7 +35,10 @@ transposition (as used by optimistix) all work.
 
 from __future__ import annotations
 
-from typing import Callable
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any, Callable, Hashable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -28,52 +48,252 @@ from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, Likelihood, m
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import (PhysParams, Simulator, make_simulator, scene_effects, steps_needed,
-                                  velocity_profile)
+from galileo_jax.simulate import (PhysParams, Simulator, make_simulator, rollout, sample_poses, scene_effects,
+                                  steps_needed, velocity_profile)
 
 #: Default central-difference step in unconstrained coordinates z (see inference/grad.py for
 #: the measurement that chose it).
 DEFAULT_FD_STEP = 0.05
 #: Largest number of rollouts vmapped at once; bigger batches are chunked with lax.map.
-DEFAULT_MAX_BATCH = 64
+#: Measured on 2 CPU cores (two-box scene, 1.6 s at 240 Hz, float64): 30 rollouts/s at
+#: batch 1, 155/s at 16, 115/s at 64, 127/s at 256.
+DEFAULT_MAX_BATCH = 16
+#: Profiles are padded to a multiple of this many samples, and rollouts to whole blocks of
+#: this many frames, so that videos of similar length share compiled programs.
+PAD_SAMPLES = 8
 
 
-def fd_jacobian_fn(f: Callable[[jax.Array], jax.Array], step: float) -> Callable[[jax.Array], jax.Array]:
-    """``f`` with its forward-mode derivative replaced by central finite differences.
+def fd_jacobian_fn(f: Callable[..., jax.Array], step: float) -> Callable[..., jax.Array]:
+    """``f(z, data)`` with its derivative in z replaced by central finite differences.
 
     Arguments:
-        f: pure function (d,) -> (...), vmappable.
-        step: difference step h in the units of the input.
+        f: pure function (z (d,), data) -> (...), vmappable in z.
+        step: difference step h in the units of z.
 
     Returns:
-        g with g(z) = f(z) and jvp(g, z, t) = sum_j t_j (f(z + h e_j) - f(z - h e_j)) / (2 h).
-        The 2d + 1 evaluations run as one vmapped batch.
+        g with g(z, data) = f(z, data) and jvp in z: sum_j t_j (f(z + h e_j) - f(z - h e_j)) / (2 h).
+        The 2d + 1 evaluations run as one vmapped batch. ``data`` is treated as constant
+        (its tangent is ignored).
     """
 
     @jax.custom_jvp
-    def g(z):
-        return f(z)
+    def g(z, data):
+        return f(z, data)
 
     @g.defjvp
     def g_jvp(primals, tangents):
-        (z,), (t,) = primals, tangents
+        (z, data), (t, _) = primals, tangents
         d = z.shape[-1]
         eye = jnp.eye(d, dtype=z.dtype) * step
         pts = jnp.concatenate([z[None], z[None] + eye, z[None] - eye])
-        out = jax.vmap(f)(pts)
+        out = jax.vmap(f, in_axes=(0, None))(pts, data)
         jac = (out[1:d + 1] - out[d + 1:]) / (2.0 * step)  # (d, ...)
         return out[0], jnp.tensordot(t, jac, axes=(0, 0))
 
     return g
 
 
-class Problem:
+def map_batch(f: Callable, xs, max_batch: int):
+    """Apply unbatched ``f`` over the leading axis of the pytree ``xs``: vmap, or lax.map with
+    batch_size ``max_batch`` for bigger batches (pure; use inside jit)."""
+    n = jax.tree_util.tree_leaves(xs)[0].shape[0]
+    if n <= max_batch:
+        return jax.vmap(f)(xs)
+    return jax.lax.map(f, xs, batch_size=max_batch)
+
+
+# ---------------------------------------------------------------------------- shared jit cache
+_JIT_CACHE: "OrderedDict[tuple, Callable]" = OrderedDict()
+_JIT_CACHE_SIZE = 128
+
+
+def clear_caches() -> None:
+    """Forget the shared engines and jitted functions, and JAX's own caches.
+
+    Every compiled XLA:CPU program keeps hundreds of memory mappings; a process that compiles
+    many different programs (a test session: ~200) reaches Linux's default limit of 65530 maps
+    (``vm.max_map_count``) and aborts inside XLA. Long-running callers that move on to other
+    scenes (test modules, benchmark suites) call this between them.
+    """
+    _JIT_CACHE.clear()
+    _ENGINES.clear()
+    jax.clear_caches()
+
+
+def cached_jit(static_key: Hashable, name: Hashable, fn: Callable, **jit_kw) -> Callable:
+    """``jax.jit(fn)``, shared by every caller with the same (static_key, name).
+
+    ``fn`` must depend only on what ``static_key`` identifies (never on an observation: pass
+    those as arguments); the first caller's ``fn`` serves all later ones.
+    """
+    key = (static_key, name)
+    if key in _JIT_CACHE:
+        _JIT_CACHE.move_to_end(key)
+        return _JIT_CACHE[key]
+    jitted = jax.jit(fn, **jit_kw)
+    _JIT_CACHE[key] = jitted
+    while len(_JIT_CACHE) > _JIT_CACHE_SIZE:
+        _JIT_CACHE.popitem(last=False)
+    return jitted
+
+
+# ---------------------------------------------------------------------------- static / dynamic parts
+class ProblemData(NamedTuple):
+    """The observation-dependent inputs of an :class:`Engine`'s pure functions (a pytree).
+
+    Attributes:
+        frame_times: (M + 1,) frame times in s (padded past the video's end at 1 / fps).
+        release_time: () video time in s at which the objects are released.
+        likelihood: the observation's :class:`~galileo_jax.likelihood.Likelihood`, length M.
+    """
+
+    frame_times: jax.Array
+    release_time: jax.Array
+    likelihood: Likelihood
+
+
+@dataclass(frozen=True, eq=False)
+class Engine:
+    """The static part of a :class:`Problem` (module docstring): shared, never holds an observation.
+
+    Attributes:
+        key: hashable identity (scene physics, fps, effects, rollout length, batch size). The
+            likelihood's kind is static metadata of its pytree, so jit tells kinds apart itself.
+        sim: the MJX simulator.
+        space: the parameter space.
+        n_steps: physics steps of a rollout (static).
+        max_batch: largest vmapped batch of rollouts.
+    """
+
+    key: tuple
+    sim: Simulator
+    space: ParamSpace
+    n_steps: int
+    max_batch: int
+
+    def profile_physical(self, params: PhysParams, data: ProblemData) -> jax.Array:
+        """Unbatched simulated profile (2n, M) in m/s for :class:`PhysParams`, released at the
+        tracker's estimate (pure)."""
+        return velocity_profile(self.sim, params, data.frame_times, data.release_time, self.n_steps)
+
+    def profile_theta(self, theta: jax.Array, data: ProblemData) -> jax.Array:
+        """Unbatched simulated profile (2n, M) at theta (d,) (pure); the release time is the
+        tracker's estimate plus theta's ``dt_release``."""
+        release = data.release_time + self.space.release_offset(theta)
+        return velocity_profile(self.sim, self.space.physical(theta), data.frame_times, release, self.n_steps)
+
+    def profile_z(self, z: jax.Array, data: ProblemData) -> jax.Array:
+        """Unbatched simulated profile (2n, M) at unconstrained z (d,) (pure, fit window)."""
+        return self.profile_theta(self.space.from_unconstrained(z), data)
+
+    def loglik_z(self, z: jax.Array, data: ProblemData) -> jax.Array:
+        """Unbatched log-likelihood (or similarity) at z (d,); -inf if the rollout is not finite."""
+        ll = data.likelihood(self.profile_z(z, data))
+        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
+
+    def residuals_z(self, z: jax.Array, data: ProblemData) -> jax.Array:
+        """Unbatched standardised residuals (T * M,) at z (d,) (pure)."""
+        return data.likelihood.residuals(self.profile_z(z, data))
+
+    def poses(self, theta: jax.Array, data: ProblemData) -> jax.Array:
+        """(M + 1, n_objects, 3) simulated poses (x m, z m, pitch rad) at the frame times (pure)."""
+        traj = rollout(self.sim, self.space.physical(theta), self.n_steps)
+        return sample_poses(traj, data.frame_times - data.release_time - self.space.release_offset(theta))
+
+
+_ENGINES: "OrderedDict[tuple, Engine]" = OrderedDict()
+_ENGINES_SIZE = 16
+
+
+def scene_key(scene: Scene) -> str:
+    """What of a scene changes the simulation (everything but its name, camera and video block)."""
+    return scene.model_dump_json(exclude={"name", "camera", "video"})
+
+
+def _blocks(seconds: float, fps: float) -> float:
+    """``seconds`` rounded up to whole blocks of PAD_SAMPLES frames (at least one)."""
+    frames = max(math.ceil(seconds * fps - 1e-9), 1)
+    return PAD_SAMPLES * math.ceil(frames / PAD_SAMPLES) / fps
+
+
+def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_batch: int) -> Engine:
+    """The shared :class:`Engine` for these settings (built once per process and key); its
+    rollouts cover ``seconds`` after the release plus the release-time window."""
+    early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
+    length = _blocks(seconds + early, fps)
+    key = (scene_key(scene), float(fps), tuple(effects), length, int(max_batch))
+    if key in _ENGINES:
+        _ENGINES.move_to_end(key)
+        return _ENGINES[key]
+    sim = make_simulator(scene, float(fps), effects)
+    engine = Engine(key, sim, ParamSpace.from_scene(scene, effects), steps_needed(sim, length), int(max_batch))
+    _ENGINES[key] = engine
+    while len(_ENGINES) > _ENGINES_SIZE:
+        _ENGINES.popitem(last=False)
+    return engine
+
+
+def padded_frame_times(frame_times: np.ndarray, fps: float, n_samples: int) -> np.ndarray:
+    """(N,) frame times extended at 1 / fps to n_samples + 1 entries."""
+    ft = np.asarray(frame_times, np.float64)
+    extra = n_samples + 1 - ft.size
+    if extra <= 0:
+        return ft
+    return np.concatenate([ft, ft[-1] + np.arange(1, extra + 1) / float(fps)])
+
+
+class BatchedAPI:
+    """The jitted batched API every problem type shares (Problem, JointProblem, FixedProblem).
+
+    Needs ``space``, ``loglik_fn`` (pure ``f(z, data)``), ``max_batch``, ``data`` and
+    ``static_key``; the jitted functions take ``data`` as an argument and are shared through
+    :func:`cached_jit` by every problem with the same ``static_key``.
+    """
+
+    @property
+    def dim(self) -> int:
+        return self.space.dim
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.space.names
+
+    def map_batch(self, f: Callable, xs):
+        """:func:`map_batch` with this problem's ``max_batch``."""
+        return map_batch(f, xs, self.max_batch)
+
+    def jitted(self, name: Hashable, fn: Callable) -> Callable:
+        """``jax.jit(fn)`` shared by every problem with this ``static_key`` (see :func:`cached_jit`)."""
+        return cached_jit(self.static_key, name, fn)
+
+    def log_density_fn(self, zb: jax.Array, data) -> jax.Array:
+        """Pure batched log posterior density (unnormalised), (B, d) -> (B,); for use inside jit/scan.
+
+        log p(z | obs) = log_lik(z) + log_prior(z) (prior includes the transform's
+        log-Jacobian); -inf where the rollout or the prior is not finite. One vmapped rollout.
+        """
+        return batched_log_density(self.space, self.loglik_fn, self.max_batch, zb, data)
+
+    def log_density(self, z: jax.Array) -> jax.Array:
+        """Jitted :meth:`log_density_fn` at this problem's data: (B, d) -> (B,)."""
+        space, f, mb = self.space, self.loglik_fn, self.max_batch
+        fn = self.jitted("log_density", lambda zb, data: batched_log_density(space, f, mb, zb, data))
+        return fn(jnp.asarray(z, jnp.float64), self.data)
+
+    def log_likelihood(self, z: jax.Array) -> jax.Array:
+        """Log-likelihood (or similarity) at unconstrained points, (B, d) -> (B,)."""
+        f, mb = self.loglik_fn, self.max_batch
+        fn = self.jitted("log_likelihood", lambda zb, data: map_batch(lambda z: f(z, data), zb, mb))
+        return fn(jnp.asarray(z, jnp.float64), self.data)
+
+
+class Problem(BatchedAPI):
     """Simulator, observation, parameter space and likelihood of one fit.
 
     Arguments:
         scene: the validated scene (free parameters, priors, geometry).
         observation: the observed profile (frame rate, mask, noise SDs).
-        likelihood: a likelihood kind (``galileo_jax.likelihood.KINDS``), default "gaussian_ma1".
+        likelihood: a likelihood kind (``galileo_jax.likelihood.KINDS``), default "gaussian_iid".
         sd_model: model-error floor in m/s for the Gaussian kinds.
         max_batch: largest vmapped batch of rollouts; larger batches are chunked.
         effects: extra physical effects (names or :class:`~galileo_jax.effects.Effect`), added
@@ -82,6 +302,12 @@ class Problem:
     Raises:
         ValueError: the observation does not match the scene (number of objects), or any
             error of :func:`~galileo_jax.likelihood.make_likelihood` / ``ParamSpace.from_scene``.
+
+    Interface shared with :class:`~galileo_jax.inference.joint.JointProblem` and
+    :class:`~galileo_jax.inference.fixed.FixedProblem` (what the optimisers and samplers use):
+    ``space``, ``dim``, ``names``, ``data``, ``static_key``, ``likelihood`` (``log_norm``,
+    ``is_gaussian``), the pure ``loglik_fn(z, data)`` and ``residual_fn(...)(z, data)``, the
+    jitted batched ``log_likelihood``, ``log_density``, ``residuals``, and ``jitted``.
     """
 
     def __init__(self, scene: Scene, observation: Observation, likelihood: str = DEFAULT_KIND,
@@ -95,43 +321,49 @@ class Problem:
         self.scene = scene
         self.observation = observation
         self.effects = scene_effects(scene, effects)
-        self.space = ParamSpace.from_scene(scene, self.effects)
-        self.likelihood: Likelihood = make_likelihood(observation, likelihood, sd_model)
-        self.sim: Simulator = make_simulator(scene, float(observation.fps), self.effects)
-        self.max_batch = int(max_batch)
-        ft = np.asarray(observation.frame_times, np.float64)
-        self.frame_times = jnp.asarray(ft, jnp.float32)
-        self.release_time = jnp.asarray(observation.release_time, jnp.float32)
-        last = int(self.likelihood.idx[-1]) + 1
-        self.n_steps_fit = steps_needed(self.sim, max(ft[last] - float(observation.release_time), self.sim.dt))
-        self.n_steps_full = steps_needed(self.sim, max(ft[-1] - float(observation.release_time), self.sim.dt))
-        self._jit_cache: dict = {}
+        fps = float(observation.fps)
+        n = int(np.shape(observation.profile)[1])
+        n_pad = PAD_SAMPLES * math.ceil(n / PAD_SAMPLES)
+        lik = make_likelihood(observation, likelihood, sd_model, n_samples=n_pad)
+        ft = padded_frame_times(observation.frame_times, fps, n_pad)
+        self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch)
+        release = float(observation.release_time)
+        self.data = ProblemData(jnp.asarray(ft), jnp.asarray(release), lik)
+        self.n_samples = n
+
+    # ------------------------------------------------------------------ static parts
+    @property
+    def sim(self) -> Simulator:
+        return self.engine.sim
+
+    @property
+    def space(self) -> ParamSpace:
+        return self.engine.space
+
+    @property
+    def max_batch(self) -> int:
+        return self.engine.max_batch
+
+    @property
+    def static_key(self) -> tuple:
+        return self.engine.key
+
+    @property
+    def likelihood(self) -> Likelihood:
+        return self.data.likelihood
+
+    @property
+    def n_steps(self) -> int:
+        return self.engine.n_steps
 
     # ------------------------------------------------------------------ pure building blocks
     @property
-    def dim(self) -> int:
-        return self.space.dim
+    def loglik_fn(self) -> Callable[[jax.Array, ProblemData], jax.Array]:
+        """Pure unbatched log-likelihood ``f(z (d,), data) -> ()``."""
+        return self.engine.loglik_z
 
-    @property
-    def names(self) -> tuple[str, ...]:
-        return self.space.names
-
-    def profile_physical(self, params: PhysParams, full: bool = False) -> jax.Array:
-        """Unbatched simulated profile (2n, N-1) in m/s for :class:`PhysParams` (pure)."""
-        n = self.n_steps_full if full else self.n_steps_fit
-        return velocity_profile(self.sim, params, self.frame_times, self.release_time, n)
-
-    def profile_z(self, z: jax.Array) -> jax.Array:
-        """Unbatched simulated profile (2n, N-1) for unconstrained z (d,) (pure, fit window)."""
-        return self.profile_physical(self.space.physical(self.space.from_unconstrained(z)))
-
-    def loglik_z(self, z: jax.Array) -> jax.Array:
-        """Unbatched log-likelihood (or similarity) at z (d,); -inf if the rollout is not finite."""
-        ll = self.likelihood(self.profile_z(z))
-        return jnp.where(jnp.isfinite(ll), ll, -jnp.inf)
-
-    def residual_fn(self, jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP) -> Callable[[jax.Array], jax.Array]:
-        """Pure z (d,) -> standardised residuals (n_residuals,), whose derivative is AD or FD.
+    def residual_fn(self, jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP) -> Callable[[jax.Array, Any], jax.Array]:
+        """Pure ``f(z (d,), data) -> standardised residuals (n_residuals,)``, whose z-derivative is AD or FD.
 
         Arguments:
             jacobian: "fd" (central differences via ``custom_jvp``, see module docstring) or "ad".
@@ -140,71 +372,66 @@ class Problem:
         Raises:
             ValueError: unknown ``jacobian``, non-positive step, or a non-Gaussian likelihood.
         """
-        if jacobian not in ("fd", "ad"):
-            raise ValueError(f"jacobian must be 'fd' or 'ad', got {jacobian!r}")
-        if not fd_step > 0:
-            raise ValueError(f"fd_step must be > 0, got {fd_step}")
-        if not self.likelihood.is_gaussian:
-            raise ValueError(f"likelihood {self.likelihood.kind!r} has no residuals; least squares needs a Gaussian kind")
-        lik = self.likelihood
-
-        def res(z):
-            return lik.residuals(self.profile_z(z))
-
+        check_residual_args(jacobian, fd_step, self.likelihood)
+        res = self.engine.residuals_z
         return fd_jacobian_fn(res, fd_step) if jacobian == "fd" else res
 
-    def map_batch(self, f: Callable, xs):
-        """Apply unbatched ``f`` over the leading axis of the pytree ``xs``: vmap, or lax.map
-        with batch_size ``max_batch`` for bigger batches (pure; use inside jit)."""
-        n = jax.tree_util.tree_leaves(xs)[0].shape[0]
-        if n <= self.max_batch:
-            return jax.vmap(f)(xs)
-        return jax.lax.map(f, xs, batch_size=self.max_batch)
-
     # ------------------------------------------------------------------ jitted batched API
-    def _jitted(self, name: str, fn: Callable) -> Callable:
-        if name not in self._jit_cache:
-            self._jit_cache[name] = jax.jit(fn)
-        return self._jit_cache[name]
-
-    def log_density_fn(self, zb: jax.Array) -> jax.Array:
-        """Pure batched log posterior density (unnormalised), (B, d) -> (B,); for use inside jit/scan.
-
-        log p(z | obs) = log_lik(z) + log_prior(z) (prior includes the transform's
-        log-Jacobian); -inf where the rollout or the prior is not finite. One vmapped rollout.
-        """
-        lp = self.space.log_prior(zb) + self.map_batch(self.loglik_z, zb)
-        return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
-
-    def log_density(self, z: jax.Array) -> jax.Array:
-        """Jitted :meth:`log_density_fn`: (B, d) -> (B,)."""
-        return self._jitted("log_density", self.log_density_fn)(jnp.asarray(z, jnp.float32))
-
-    def log_likelihood(self, z: jax.Array) -> jax.Array:
-        """Log-likelihood (or similarity) at unconstrained points, (B, d) -> (B,)."""
-        return self._jitted("log_likelihood", lambda zb: self.map_batch(self.loglik_z, zb))(jnp.asarray(z, jnp.float32))
-
     def profiles_physical(self, params: PhysParams) -> jax.Array:
-        """Simulated profiles (B, 2n, N-1) in m/s for batched PhysParams (leaves (B, n)), fit window."""
-        return self._jitted("profiles_physical", lambda p: self.map_batch(self.profile_physical, p))(
-            jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32), params))
+        """Simulated profiles (B, 2n, N-1) in m/s for batched PhysParams (leaves (B, n)), released at the estimate."""
+        eng = self.engine
+        fn = self.jitted("profiles_physical",
+                         lambda p, data: map_batch(lambda q: eng.profile_physical(q, data), p, eng.max_batch))
+        out = fn(jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64), params), self.data)
+        return out[..., :self.n_samples]
 
     def residuals(self, theta: jax.Array) -> jax.Array:
-        """Standardised residuals at theta (d,) -> (n_residuals,) (or (B, d) -> (B, n_residuals))."""
-        theta = jnp.asarray(theta, jnp.float32)
-        lik = self.likelihood
-        if not lik.is_gaussian:
-            raise ValueError(f"likelihood {lik.kind!r} has no residuals")
-        f = self._jitted("residuals", lambda tb: self.map_batch(
-            lambda t: lik.residuals(self.profile_physical(self.space.physical(t))), tb))
-        return f(theta[None])[0] if theta.ndim == 1 else f(theta)
+        """Standardised residuals at theta: (d,) -> (n_residuals,), or (B, d) -> (B, n_residuals).
+
+        Length T * M with zeros at unused samples; ``problem.likelihood.used(r)`` selects the used ones.
+        """
+        theta = jnp.asarray(theta, jnp.float64)
+        if not self.likelihood.is_gaussian:
+            raise ValueError(f"likelihood {self.likelihood.kind!r} has no residuals")
+        eng = self.engine
+        fn = self.jitted("residuals", lambda tb, data: map_batch(
+            lambda t: data.likelihood.residuals(eng.profile_theta(t, data)), tb, eng.max_batch))
+        return fn(theta[None], self.data)[0] if theta.ndim == 1 else fn(theta, self.data)
 
     def simulate(self, theta: jax.Array) -> jax.Array:
         """Simulated profile over the WHOLE video at theta: (d,) -> (2n, N-1), or (B, d) -> (B, 2n, N-1), m/s."""
-        theta = jnp.asarray(theta, jnp.float32)
-        f = self._jitted("simulate", lambda tb: self.map_batch(
-            lambda t: self.profile_physical(self.space.physical(t), full=True), tb))
-        return f(theta[None])[0] if theta.ndim == 1 else f(theta)
+        theta = jnp.asarray(theta, jnp.float64)
+        eng = self.engine
+        fn = self.jitted("simulate", lambda tb, data: map_batch(
+            lambda t: eng.profile_theta(t, data), tb, eng.max_batch))
+        out = fn(theta[None], self.data)[0] if theta.ndim == 1 else fn(theta, self.data)
+        return out[..., :self.n_samples]
+
+    def poses(self, theta: jax.Array) -> np.ndarray:
+        """(N, n_objects, 3) simulated poses (x m, z m, pitch rad) at the video's frame times."""
+        fn = self.jitted("poses", self.engine.poses)
+        out = fn(jnp.asarray(theta, jnp.float64), self.data)
+        return np.asarray(out)[:self.n_samples + 1]
+
+
+def check_residual_args(jacobian: str, fd_step: float, likelihood) -> None:
+    """Python-side validation shared by the problems' ``residual_fn``.
+
+    Raises:
+        ValueError: unknown ``jacobian``, non-positive step, or a non-Gaussian likelihood.
+    """
+    if jacobian not in ("fd", "ad"):
+        raise ValueError(f"jacobian must be 'fd' or 'ad', got {jacobian!r}")
+    if not fd_step > 0:
+        raise ValueError(f"fd_step must be > 0, got {fd_step}")
+    if not likelihood.is_gaussian:
+        raise ValueError(f"likelihood {likelihood.kind!r} has no residuals; least squares needs a Gaussian kind")
+
+
+def batched_log_density(space, loglik_fn: Callable, max_batch: int, zb: jax.Array, data) -> jax.Array:
+    """log_prior(z) + loglik(z, data) for a batch zb (B, d) -> (B,); -inf where not finite (pure)."""
+    lp = space.log_prior(zb) + map_batch(lambda z: loglik_fn(z, data), zb, max_batch)
+    return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
 
 
 def simulated_observation(scene: Scene, params: PhysParams, *, fps: float = 30.0, duration: float = 1.5,
@@ -234,10 +461,8 @@ def simulated_observation(scene: Scene, params: PhysParams, *, fps: float = 30.0
     n_frames = int(round(duration * fps)) + 1
     ft = np.arange(n_frames) / fps
     n = steps_needed(sim, ft[-1] - release_time)
-    from galileo_jax.simulate import rollout, sample_poses
-
     traj = jax.jit(lambda p: rollout(sim, p, n))(params)
-    pos = np.asarray(sample_poses(traj, jnp.asarray(ft - release_time, jnp.float32))[..., :2], np.float64)
+    pos = np.asarray(sample_poses(traj, jnp.asarray(ft - release_time))[..., :2], np.float64)
     sd = np.broadcast_to(np.asarray(position_sd, np.float64), (2 * scene.n_objects,)).copy()
     rng = np.random.default_rng(seed)
     noisy = pos + rng.normal(size=pos.shape) * sd.reshape(scene.n_objects, 2)[None]

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.inference.problem import map_batch
 from galileo_jax.likelihood import make_likelihood
 from galileo_jax.model import NOMINAL_MASS
 from galileo_jax.simulate import PhysParams
@@ -78,6 +79,41 @@ def _physical(scene, names, x):
     return PhysParams(jnp.stack(mass, -1), jnp.stack(fric, -1))
 
 
+def _similarity_fn(engine, scene, names):
+    """Pure batched similarity ``f(x (B, d), data) -> (B,)`` of physical points x (NaN -> -inf)."""
+
+    def similarity(x, data):
+        s = map_batch(lambda p: data.likelihood(engine.profile_physical(p, data)), _physical(scene, names, x),
+                      engine.max_batch)
+        return jnp.where(jnp.isnan(s), -jnp.inf, s)
+
+    return similarity
+
+
+def _seed_runner(engine, scene, names, lo: np.ndarray, hi: np.ndarray):
+    """Pure ``run(carry, keys, idx, data)``: the seed's steps under ``lax.scan`` (Algorithm 1)."""
+    similarity = _similarity_fn(engine, scene, names)
+    lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
+
+    def run(carry, keys, idx, data):
+        def step(carry, inp):
+            x, s = carry
+            key, i = inp
+            k_u, k_c = jax.random.split(key)
+            w = jnp.where(i % SEED_WIDE_EVERY == 0, SEED_WIDE, SEED_WIDTH) * (hi_j - lo_j)
+            a, b = jnp.maximum(x - w, lo_j), jnp.minimum(x + w, hi_j)
+            x_new = a + jax.random.uniform(k_u, x.shape, x.dtype) * (b - a)
+            s_new = similarity(x_new, data)
+            accept = (s_new >= s) | (jax.random.uniform(k_c, s.shape) < 0.5)
+            x = jnp.where(accept[:, None], x_new, x)
+            s = jnp.where(accept, s_new, s)
+            return (x, s), (x_new, s_new, accept, x, s)
+
+        return jax.lax.scan(step, carry, (keys, idx))
+
+    return run
+
+
 def run_seed_mh(problem, rng_key: jax.Array, *, n_chains: int = SEED_CHAINS, n_steps: int = SEED_STEPS,
                 likelihood: str = "seed_gaussian", chunk: int = 15, progress: bool = True) -> SeedResult:
     """Run the seed's coin-toss sampler and return its best proposal (module docstring).
@@ -103,33 +139,17 @@ def run_seed_mh(problem, rng_key: jax.Array, *, n_chains: int = SEED_CHAINS, n_s
     names = tuple(scene.free_parameters())
     if not names:
         raise ValueError(f"scene {scene.name!r} has no free parameter")
-    lik = make_likelihood(problem.observation, likelihood, problem.likelihood.sd_model)
-    lo = np.array([scene.priors.mass[0] if n[0] == "m" else scene.priors.friction[0] for n in names], np.float32)
-    hi = np.array([scene.priors.mass[1] if n[0] == "m" else scene.priors.friction[1] for n in names], np.float32)
+    lik = make_likelihood(problem.observation, likelihood, problem.likelihood.sd_model,
+                          n_samples=problem.likelihood.obs.shape[1])
+    data = problem.data._replace(likelihood=lik)
+    lo = np.array([scene.priors.mass[0] if n[0] == "m" else scene.priors.friction[0] for n in names], np.float64)
+    hi = np.array([scene.priors.mass[1] if n[0] == "m" else scene.priors.friction[1] for n in names], np.float64)
+    # pure functions of (x, data): they read only the scene and the engine (the static key)
+    run_data = problem.jitted(("seed_mh", likelihood), _seed_runner(problem.engine, scene, names, lo, hi))
+    start_data = problem.jitted(("seed_similarity", likelihood), _similarity_fn(problem.engine, scene, names))
+    run = lambda carry, keys, idx: run_data(carry, keys, idx, data)  # noqa: E731
+    start_sim = lambda x: start_data(x, data)  # noqa: E731
     lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
-
-    def similarity(x):
-        s = problem.map_batch(lambda p: lik(problem.profile_physical(p)), _physical(scene, names, x))
-        return jnp.where(jnp.isnan(s), -jnp.inf, s)
-
-    def step(carry, inp):
-        x, s = carry
-        key, i = inp
-        k_u, k_c = jax.random.split(key)
-        w = jnp.where(i % SEED_WIDE_EVERY == 0, SEED_WIDE, SEED_WIDTH) * (hi_j - lo_j)
-        a, b = jnp.maximum(x - w, lo_j), jnp.minimum(x + w, hi_j)
-        x_new = a + jax.random.uniform(k_u, x.shape, x.dtype) * (b - a)
-        s_new = similarity(x_new)
-        accept = (s_new >= s) | (jax.random.uniform(k_c, s.shape) < 0.5)
-        x = jnp.where(accept[:, None], x_new, x)
-        s = jnp.where(accept, s_new, s)
-        return (x, s), (x_new, s_new, accept, x, s)
-
-    def run(carry, keys, idx):
-        return jax.lax.scan(step, carry, (keys, idx))
-
-    run = jax.jit(run)
-    start_sim = jax.jit(similarity)
     n_chunks = math.ceil(n_steps / chunk)
     bar = None
     if progress:

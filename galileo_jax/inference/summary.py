@@ -15,7 +15,8 @@ Shape::
      "diagnostics": {...}}
 
 Reported parameters: every free friction; phi = (m1 - m2) / (m1 + m2) for two-object scenes
-(sampled, derived from a free mass and a known one, or known); m1, m2. Masses are flagged
+(sampled, derived from a free mass and a known one, or known); m1, m2; the release-time
+correction ``dt_release`` (when fitted) and the effects' parameters. Masses are flagged
 ``identifiable: False`` unless a mass is known: with both masses free, MH reports draws from
 the posterior under the uniform mass prior given phi (``ParamSpace.masses_for_report``), whose
 spread is the prior's, and grad reports no mass value. One-object scenes: the mass does not
@@ -42,7 +43,7 @@ def phi_of(space: ParamSpace, theta) -> jax.Array | None:
     """phi = (m1 - m2) / (m1 + m2) for theta (..., d); None for one-object scenes."""
     if space.n_objects != 2:
         return None
-    m = space.physical(jnp.asarray(theta, jnp.float32)).mass
+    m = space.physical(jnp.asarray(theta, jnp.float64)).mass
     return (m[..., 0] - m[..., 1]) / (m[..., 0] + m[..., 1])
 
 
@@ -64,13 +65,20 @@ def _draw_stats(x: np.ndarray, best: float | None, rhat: float, ess: float, **kw
 
 
 def _effect_names(space: ParamSpace) -> list[str]:
-    return [n for n, k in zip(space.names, space.kinds) if k == "effect"]
+    """The coordinates reported as they are: the release-time correction and the effect parameters."""
+    return [n for n, k in zip(space.names, space.kinds) if k in ("release", "effect")]
+
+
+#: Report note of the release-time correction.
+RELEASE_NOTE = "release time minus the tracker's estimate (s), fitted with the physics"
 
 
 def _effect_note(name: str) -> str:
     """"effect: meaning (unit)" for an effect parameter name."""
     from galileo_jax.effects import available_effects
 
+    if name == "dt_release":
+        return RELEASE_NOTE
     for e in available_effects().values():
         for p in e.params:
             if p.name == name:
@@ -111,7 +119,7 @@ def summarize_mh(result, space: ParamSpace, key: jax.Array | None = None) -> dic
     phi = phi_of(space, theta)
     if phi is not None and "phi" not in draws and space.mass_mode == "free":
         draws["phi"] = np.asarray(phi, np.float64)
-    masses = np.asarray(space.masses_for_report(jnp.asarray(theta, jnp.float32), key), np.float64)
+    masses = np.asarray(space.masses_for_report(jnp.asarray(theta, jnp.float64), key), np.float64)
     for i in range(space.n_objects):
         if space.known_mass[i] is None and f"m{i + 1}" not in draws:
             draws[f"m{i + 1}"] = masses[..., i]
@@ -187,7 +195,7 @@ def summarize_grad(result, space: ParamSpace) -> dict:
             if space.mass_mode == "known":
                 params["phi"] = _known(value)
             else:
-                g = np.asarray(jax.grad(phi_fn)(jnp.asarray(theta, jnp.float32)), np.float64)
+                g = np.asarray(jax.grad(phi_fn)(jnp.asarray(theta, jnp.float64)), np.float64)
                 sd = float(np.sqrt(max(g @ np.asarray(result.cov_theta) @ g, 0.0)))
                 params["phi"] = _entry(mean=value, median=value, sd=sd, best=value,
                                        interval90=[max(value - 1.6448536 * sd, -1.0), min(value + 1.6448536 * sd, 1.0)])
@@ -200,9 +208,67 @@ def summarize_grad(result, space: ParamSpace) -> dict:
         else:
             note = NOT_IDENTIFIABLE_ONE if space.n_objects == 1 else NOT_IDENTIFIABLE.split(";")[0]
             params[name] = _entry(identifiable=False, note=note)
+    held = set(getattr(result, "fixed", ()))
     for name in _effect_names(space):
-        params[name] = {**est(name), "note": _effect_note(name)}
+        if name not in held:  # an effect held at a value is not part of this model's report
+            params[name] = {**est(name), "note": _effect_note(name)}
+    for name in held & set(params):
+        params[name] = _known(float(theta[idx[name]]), note="held fixed, not fitted")
     diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
                    "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
                    "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s)}
     return {"method": "grad", "parameters": params, "diagnostics": diagnostics}
+
+
+def summarize_coordinates(result, method: str) -> dict:
+    """Per-coordinate summary of a fit of any problem (e.g. a joint fit of several videos), in
+    the dict shape of the module docstring: one entry per fitted coordinate name.
+
+    Arguments:
+        result: a :class:`~galileo_jax.inference.grad.GradResult` (``method="grad"``) or an
+            :class:`~galileo_jax.inference.mh.MHResult` (``method="mh"``: ArviZ R-hat and bulk ESS).
+        method: "grad" or "mh".
+
+    Raises:
+        ValueError: an unknown method.
+    """
+    params: dict[str, dict] = {}
+    names = list(result.names)
+    held = set(getattr(result, "fixed", ()))
+    if method == "grad":
+        for j, name in enumerate(names):
+            if name in held:
+                params[name] = _known(float(result.theta[j]), note="held fixed, not fitted")
+                continue
+            v = float(result.theta[j])
+            params[name] = _entry(mean=v, median=v, sd=float(result.sd[j]), best=v,
+                                  interval90=[float(x) for x in result.interval90[j]], note=_coord_note(name))
+        diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
+                       "converged": bool(result.converged), "result": result.result, "time_s": float(result.time_s)}
+    elif method == "mh":
+        import arviz as az
+
+        theta = np.asarray(result.theta, np.float64)
+        draws = {n: theta[..., j] for j, n in enumerate(names)}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            idata = az.from_dict(posterior=draws)
+            rhat, ess = az.rhat(idata), az.ess(idata, method="bulk")
+        ibest = np.unravel_index(np.argmax(result.loglik), np.shape(result.loglik))
+        for name in names:
+            params[name] = _draw_stats(draws[name], draws[name][ibest], rhat[name], ess[name], note=_coord_note(name))
+        diagnostics = {"n_chains": int(theta.shape[0]), "n_draws": int(theta.shape[1]),
+                       "acceptance": float(np.mean(result.acceptance)),
+                       "max_rhat": float(max(p["rhat"] for p in params.values())),
+                       "min_ess_bulk": float(min(p["ess_bulk"] for p in params.values())),
+                       "seconds_per_step": float(result.seconds_per_step), "best_loglik": float(np.max(result.loglik))}
+    else:
+        raise ValueError(f"unknown method {method!r}; choose grad or mh")
+    return {"method": method, "parameters": params, "diagnostics": diagnostics}
+
+
+def _coord_note(name: str) -> str:
+    """Report note of a (possibly per-video, ``name@j``) coordinate."""
+    base, _, video = name.partition("@")
+    note = "(m1-m2)/(m1+m2), what the videos show of the masses" if base == "phi" else _effect_note(base)
+    return (note + f" (video {int(video) + 1})").strip() if video else note

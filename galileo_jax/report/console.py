@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from galileo_jax.pipeline import FitReport, identifiability_statement
+from galileo_jax.pipeline import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
     "phi": "(m1-m2)/(m1+m2), what the video shows of the masses",
@@ -17,6 +17,59 @@ def _fmt(x) -> str:
     return f"{x:.3f}" if abs(x) >= 1e-3 or x == 0 else f"{x:.2e}"
 
 
+def _parameter_lines(parameters: dict) -> list[str]:
+    """The table of estimates with 90% intervals, R-hat and ESS (where sampled)."""
+    lines = [f"  {'parameter':<14}{'estimate':>10}{'90% interval':>22}{'R-hat':>8}{'ESS':>8}   note"]
+    for name, p in parameters.items():
+        interval = p.get("interval90")
+        iv = f"[{_fmt(interval[0])}, {_fmt(interval[1])}]" if interval else "-"
+        note = NOTES.get(name, p.get("note", "") if p.get("identifiable", True) else "")
+        if not p.get("identifiable", True):
+            note = "NOT identifiable from the video (only phi is)"
+        if p.get("known"):
+            note = p.get("note") or "known (scene file)"
+        rhat = _fmt(p.get("rhat")) if p.get("rhat") is not None else ""
+        ess = f"{p['ess_bulk']:.0f}" if p.get("ess_bulk") is not None else ""
+        lines.append(f"  {name:<14}{_fmt(p.get('estimate', p.get('mean'))):>10}{iv:>22}{rhat:>8}{ess:>8}   {note}")
+    return lines
+
+
+def _rmse_lines(rmse: dict, indent: str = "    ") -> list[str]:
+    return [f"{indent}{name:<12} RMSE {r['rmse']:.3f}   noise {r['noise_sd']:.3f}   ratio {r['ratio']:.1f}"
+            for name, r in rmse.items() if name != "all"]
+
+
+def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str:
+    """Multi-line summary of a joint fit: shared and per-video estimates, fit quality per video."""
+    lines = [f"galileo_jax fit: {len(fit.videos)} videos fitted jointly (method {fit.method}); per video: "
+             f"{', '.join(fit.per_video) or 'nothing'}", ""]
+    for j, (v, s, o) in enumerate(zip(fit.videos, fit.scenes, fit.observations)):
+        lines.append(f"  video {j + 1}: {v.name} (scene {s.name}, {len(o.frame_times)} frames at {o.fps:.2f} fps)")
+    lines.append("")
+    lines += _parameter_lines(fit.parameters)
+    lines += ["", "  " + identifiability_statement(fit.scenes[0]), ""]
+    lines.append("  fit quality per video (RMSE of observed - simulated velocity, m/s; log-likelihood):")
+    for j, (r, ll) in enumerate(zip(fit.rmse, fit.video_loglik)):
+        lines.append(f"    video {j + 1}: RMSE {r['all']['rmse']:.3f}, log L {ll:.1f}")
+        lines += _rmse_lines(r, "      ")
+    lines += _diagnostic_lines(fit.diagnostics) + [""]
+    return "\n".join(lines + _footer_lines(fit.outputs, elapsed))
+
+
+def _diagnostic_lines(diagnostics: dict) -> list[str]:
+    diag = {k: v for k, v in diagnostics.items() if isinstance(v, (int, float, bool, str))}
+    if not diag:
+        return []
+    return ["  diagnostics: " + ", ".join(f"{k} {_fmt(v) if isinstance(v, float) else v}" for k, v in diag.items())]
+
+
+def _footer_lines(outputs: dict, elapsed: float | None) -> list[str]:
+    lines = [f"  wrote {kind}: {path}" for kind, path in outputs.items()]
+    if elapsed is not None:
+        lines.append(f"  total time {elapsed:.1f} s")
+    return lines
+
+
 def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
     """Multi-line summary: estimates with 90% intervals, diagnostics, fit quality, prediction."""
     obs = fit.observation
@@ -24,30 +77,12 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
         f"galileo_jax fit: {fit.video.name}  (scene {fit.scene.name}, {len(obs.frame_times)} frames at "
         f"{obs.fps:.2f} fps, method {fit.method})",
         "",
-        f"  {'parameter':<10}{'estimate':>10}{'90% interval':>22}{'R-hat':>8}{'ESS':>8}   note",
     ]
-    for name, p in fit.parameters.items():
-        interval = p.get("interval90")
-        iv = f"[{_fmt(interval[0])}, {_fmt(interval[1])}]" if interval else "-"
-        note = NOTES.get(name, p.get("note", "") if p.get("identifiable", True) else "")
-        if not p.get("identifiable", True):
-            note = "NOT identifiable from the video (only phi is)"
-        if p.get("known"):
-            note = "known (scene file)"
-        rhat = _fmt(p.get("rhat")) if p.get("rhat") is not None else ""
-        ess = f"{p['ess_bulk']:.0f}" if p.get("ess_bulk") is not None else ""
-        lines.append(f"  {name:<10}{_fmt(p.get('estimate')):>10}{iv:>22}{rhat:>8}{ess:>8}   {note}")
+    lines += _parameter_lines(fit.parameters)
     lines += ["", "  " + identifiability_statement(fit.scene), ""]
     lines.append("  fit quality (RMSE of observed - simulated velocity, m/s; noise = tracking noise SD):")
-    for name, r in fit.rmse.items():
-        if name == "all":
-            continue
-        lines.append(f"    {name:<12} RMSE {r['rmse']:.3f}   noise {r['noise_sd']:.3f}   ratio {r['ratio']:.1f}")
-    diag = {k: v for k, v in fit.diagnostics.items() if isinstance(v, (int, float, bool, str))}
-    if diag:
-        lines.append("  diagnostics: " + ", ".join(f"{k} {_fmt(v) if isinstance(v, float) else v}"
-                                                   for k, v in diag.items()))
-    lines.append("")
+    lines += _rmse_lines(fit.rmse)
+    lines += _diagnostic_lines(fit.diagnostics) + [""]
     pred = fit.prediction
     lines.append(f"  prediction ({pred['simulated_seconds_after_release']:.1f} s after release):")
     for o in pred["objects"]:
@@ -61,8 +96,4 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
     prob = f", probability {slide['probability']:.2f}" if slide.get("probability") is not None else ""
     lines.append(f"    will object 1 slide? {'yes' if slide['answer'] else 'no'} ({slide['rule']}{prob})")
     lines.append("")
-    for kind, path in fit.outputs.items():
-        lines.append(f"  wrote {kind}: {path}")
-    if elapsed is not None:
-        lines.append(f"  total time {elapsed:.1f} s")
-    return "\n".join(lines)
+    return "\n".join(lines + _footer_lines(fit.outputs, elapsed))
