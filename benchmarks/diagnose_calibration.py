@@ -129,6 +129,13 @@ def main(argv=None) -> int:
             print(f"{effect} #{i}: {rec['decision']} ({rec['diagnose_s']:.0f} s)", flush=True)
             for ext in (".mp4",):
                 (work / f"{effect}_{i}{ext}").unlink(missing_ok=True)
+            write_tables(work)  # after every video: a stopped run still leaves its tables
+    write_tables(work)
+    return 0
+
+
+def write_tables(work: Path) -> None:
+    """Summarise every record under ``work`` into benchmarks/results/diagnose_calibration.{md,json}."""
     records = [json.loads(p.read_text()) for p in sorted(work.glob("*.json")) if not p.name.endswith(".truth.json")]
     summary = summarize(records)
     machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}"
@@ -144,9 +151,12 @@ def main(argv=None) -> int:
         lines.append(f"| {effect} | {row['videos']} | {row['correct']} | {row.get('correct_or_tied', '-')} | "
                      f"{row.get('correct_and_rmse_targets', '-')} | {row.get('median_drop_factor', float('nan')):.2f} | "
                      f"{row.get('median_final_over_floor', float('nan')):.2f} | {row['median_diagnose_s']:.0f} |")
+    lines += ["", "Per video (RMSE in m/s: base fit -> final model, noise floor):", "",
+              "| video | named first | tied | RMSE base -> final (floor) | time (s) |", "|---|---|---|---|---|"]
+    for r in records:
+        lines.append(f"| {r['effect']}_{r['index']} | {r['named_first'] or 'none'} | {', '.join(r['tied']) or '-'} | "
+                     f"{r['rmse_base']:.4f} -> {r['rmse_final']:.4f} ({r['noise_floor']:.4f}) | {r['diagnose_s']:.0f} |")
     (RESULTS / "diagnose_calibration.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0
 
 
 if __name__ == "__main__":

@@ -166,3 +166,17 @@ def test_effects_and_diagnose_bad_input(tmp_path):
     for name in ("quadratic_drag", "linear_drag", "restitution", "ramp_friction", "initial_push", "rolling",
                  "velocity_friction"):
         assert name in listing.stdout
+
+
+def test_several_videos_bad_input(tmp_path):
+    """Joint fits: scene files that do not pair with the videos, per-video options that do not
+    apply, and per-video names that are no parameter are one-line errors."""
+    video = copy_example(tmp_path)
+    scene = str(video.with_suffix(".yaml"))
+    three = ("--scene", scene) * 3
+    for module in ("galileo_jax.fit", "galileo_jax.diagnose"):
+        assert_one_line_error(run_cli(module, str(video), str(video), *three), "one --scene", "3 scene files")
+        assert_one_line_error(run_cli(module, str(video), "--per-video", "k1"), "--per-video", "several videos")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(video), str(video), "--method", "seed"), "one video")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(video), str(video), "--per-video", "k9", "--no-video"),
+                          "k9", "per_video")
