@@ -7,7 +7,7 @@ whether the residuals then look like noise (:func:`galileo_jax.diagnosis.diagnos
 the statistics).
 
 Several videos of one setup (``diagnose a.mp4 b.mp4 ...``) are diagnosed together: one set of
-parameters fits all of them (``v0`` and ``--per-video`` names per video), and an effect must
+parameters fits all of them (``dt_release``, ``v0`` and ``--per-video`` names per video), and an effect must
 explain them jointly.
 
 Outputs (in ``--out``, default ``<first video>_diagnose/``, each written atomically):
