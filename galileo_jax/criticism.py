@@ -236,8 +236,22 @@ def expected_lag1(observation: Observation, sd_model: float = SD_MODEL) -> np.nd
     return -0.5 * vsd**2 / s2
 
 
-def standardised_residuals(observation: Observation, simulated: np.ndarray, sd_model: float = SD_MODEL) -> np.ndarray:
-    """(2n, N-1) standardised residuals z = (observed - simulated) / s_i (unitless).
+def sample_sd(observation: Observation, sd_model: float = SD_MODEL, sd_events: np.ndarray | None = None) -> np.ndarray:
+    """(2n, N-1) SD of every velocity residual, m/s: sqrt(s_i^2 + sd_events^2), s_i from
+    :func:`residual_sd` and ``sd_events`` the extra model error around contact events
+    (:func:`galileo_jax.likelihood.event_sd`; None: 0)."""
+    s = residual_sd(observation, sd_model)[:, None] * np.ones(np.shape(observation.profile))
+    if sd_events is not None:
+        ev = np.asarray(sd_events, np.float64)
+        if ev.shape != s.shape:
+            raise ValueError(f"sd_events has shape {ev.shape}, expected {s.shape} like the profile")
+        s = np.sqrt(s**2 + ev**2)
+    return s
+
+
+def standardised_residuals(observation: Observation, simulated: np.ndarray, sd_model: float = SD_MODEL,
+                           sd_events: np.ndarray | None = None) -> np.ndarray:
+    """(2n, N-1) standardised residuals z = (observed - simulated) / s (unitless), s from :func:`sample_sd`.
 
     Raises:
         ValueError: shape mismatch, or a trace with zero noise and zero model floor.
@@ -246,10 +260,10 @@ def standardised_residuals(observation: Observation, simulated: np.ndarray, sd_m
     sim = np.asarray(simulated, np.float64)
     if sim.shape != obs.shape:
         raise ValueError(f"simulated profile has shape {sim.shape}, expected {obs.shape} like the observation")
-    s = residual_sd(observation, sd_model)
+    s = sample_sd(observation, sd_model, sd_events)
     if not np.all(s > 0):
         raise ValueError("a trace has zero position noise and zero model floor: give sd_model > 0")
-    return (obs - sim) / s[:, None]
+    return (obs - sim) / s
 
 
 def noise_floor(observation: Observation) -> float:
@@ -448,9 +462,11 @@ class ResidualRow:
 
 
 def _row(trace: str, obj: int, axis: str, phase: str, idx: np.ndarray, obs: np.ndarray, sim: np.ndarray,
-         s: float, rho: float, dt: np.ndarray) -> ResidualRow:
+         s: np.ndarray, vsd: float, dt: np.ndarray) -> ResidualRow:
     r = obs[idx] - sim[idx]
+    s = np.asarray(s, np.float64)[idx]
     z = r / s
+    rho = float(np.mean(-0.5 * vsd**2 / s**2))  # lag-1 correlation under the model (per-sample SDs averaged)
     p_runs = runs_test(z)
     rho_hat, p_lag1 = lag1_test(z, idx, rho)
     cus, p_cusum = cusum_test(z, idx, rho)
@@ -460,7 +476,7 @@ def _row(trace: str, obj: int, axis: str, phase: str, idx: np.ndarray, obs: np.n
     return ResidualRow(
         trace=trace, object=obj, axis=axis, phase=phase, n=int(idx.size),
         rms_z=float(np.sqrt(np.mean(z**2))), mean_z=float(np.mean(z)),
-        rmse=float(np.sqrt(np.mean(r**2))), rmse_expected=float(s), mean_offset=float(np.mean(r)),
+        rmse=float(np.sqrt(np.mean(r**2))), rmse_expected=float(np.sqrt(np.mean(s**2))), mean_offset=float(np.mean(r)),
         sim_mean_velocity=float(np.mean(sim[idx])),
         obs_displacement=float(np.sum(obs[idx] * dt[idx])), sim_displacement=float(np.sum(sim[idx] * dt[idx])),
         rho_expected=float(rho), rho_hat=float(rho_hat), cusum=float(cus), chi2=float(chi),
@@ -468,7 +484,8 @@ def _row(trace: str, obj: int, axis: str, phase: str, idx: np.ndarray, obs: np.n
 
 
 def residual_table(observation: Observation, simulated: np.ndarray, sd_model: float = SD_MODEL,
-                   phases: np.ndarray | None = None, alpha: float = 0.01) -> list[ResidualRow]:
+                   phases: np.ndarray | None = None, alpha: float = 0.01,
+                   sd_events: np.ndarray | None = None) -> list[ResidualRow]:
     """Residual summary and structure tests per trace and motion phase.
 
     For each trace (rows of the profile: "object 1 x", "object 1 y", ...) one row per phase
@@ -484,6 +501,8 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
         sd_model: model-error floor of the likelihood, m/s.
         phases: (n, N-1) phase labels (:func:`motion_phases`); None gives the "all" rows only.
         alpha: family-wise significance level of the whole table.
+        sd_events: optional (2n, N-1) extra model-error SD (m/s) around contact events
+            (:func:`sample_sd`); a row's lag-1 correlation is then the mean of the per-sample ones.
 
     Returns:
         List of :class:`ResidualRow`, ordered by trace, then phase in :data:`PHASES` order, then "all".
@@ -506,9 +525,9 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
         phases = np.asarray(phases)
         if phases.shape != (n_obj, m):
             raise ValueError(f"phases has shape {phases.shape}, expected ({n_obj}, {m})")
-    standardised_residuals(observation, sim, sd_model)  # validates shapes and noise
-    s = residual_sd(observation, sd_model)
-    rho = expected_lag1(observation, sd_model)
+    standardised_residuals(observation, sim, sd_model, sd_events)  # validates shapes and noise
+    s = sample_sd(observation, sd_model, sd_events)
+    vsd = np.asarray(observation.velocity_sd, np.float64)
     dt = np.diff(np.asarray(observation.frame_times, np.float64))
     names = trace_names(n_obj)
     rows: list[ResidualRow] = []
@@ -523,7 +542,7 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
             idx = np.flatnonzero(sel)
             if idx.size < (MIN_SAMPLES if phase != ALL else 1):
                 continue
-            rows.append(_row(names[i], obj, axis, phase, idx, obs[i], sim[i], float(s[i]), float(rho[i]), dt))
+            rows.append(_row(names[i], obj, axis, phase, idx, obs[i], sim[i], s[i], float(vsd[i]), dt))
     n_tests = sum(int(np.isfinite([getattr(r, f"p_{t}") for t in TESTS]).sum()) for r in rows)
     out = []
     for r in rows:
@@ -586,9 +605,15 @@ def _describe(row: ResidualRow, min_displacement: float) -> str:
     if abs(v) > REST_SPEED:
         word = "faster" if d * np.sign(v) > 0 else "slower"
         along = " vertically" if vert else ""
-        return f"{who} is {word}{along} than simulated by {abs(d):.2f} m/s on average"
+        return f"{who} is {word}{along} than simulated by {_speed(d)} on average"
     direction = ("up" if d > 0 else "down") if vert else ("downhill" if d > 0 else "uphill")
-    return f"{who} drifts {direction} at {abs(d):.2f} m/s on average while the simulation has it still"
+    return f"{who} drifts {direction} at {_speed(d)} on average while the simulation has it still"
+
+
+def _speed(v: float) -> str:
+    """|v| in m/s with two significant digits below 0.1 m/s (0.0032 m/s, not 0.00 m/s)."""
+    v = abs(float(v))
+    return f"{v:.2f} m/s" if v >= 0.1 else f"{v:.2g} m/s"
 
 
 def verdict(table: Sequence[ResidualRow], min_displacement: float = MIN_DISPLACEMENT) -> str:
@@ -619,7 +644,8 @@ def verdict(table: Sequence[ResidualRow], min_displacement: float = MIN_DISPLACE
 
 
 def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray, sd_model: float = SD_MODEL,
-              alpha: float = 0.01, rest_speed: float = REST_SPEED, collision_halfwidth: int = 2) -> dict[str, Any]:
+              alpha: float = 0.01, rest_speed: float = REST_SPEED, collision_halfwidth: int = 2,
+              sd_events: np.ndarray | None = None) -> dict[str, Any]:
     """Criticise a fit: phases, residual table and verdict, as JSON-ready values.
 
     Args:
@@ -630,6 +656,7 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
         alpha: family-wise significance level.
         rest_speed: speed (m/s) below which a simulated object is at rest.
         collision_halfwidth: half-width of the collision window in samples.
+        sd_events: optional (2n, N-1) extra model-error SD around contact events (:func:`sample_sd`).
 
     Returns:
         {"phases": {"order", "labels" (n lists of N-1 names), "spans" (per object, list of
@@ -641,7 +668,7 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
     t = np.asarray(observation.frame_times, np.float64)
     phases = motion_phases(poses, t, observation.release_time, observation.n_objects, rest_speed,
                            collision_halfwidth)
-    table = residual_table(observation, simulated, sd_model, phases, alpha)
+    table = residual_table(observation, simulated, sd_model, phases, alpha, sd_events)
     mid = 0.5 * (t[1:] + t[:-1])
     kc = impact_sample(poses, t, observation.release_time, rest_speed)
 

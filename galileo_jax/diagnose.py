@@ -87,13 +87,18 @@ def summary_text(diag, videos: list[Path]) -> str:
             for r in rnd["screen"]:
                 lines.append(f"    {r['effect']:<26}{r['score']:>9.1f}{r['p_value']:>10.2g}{r['grid_gain']:>11.1f}"
                              f"{r['best_value']:>8.3g}")
-        lines.append(f"    {'refit: effect':<26}{'dlogL':>9}{'p':>10}{'RMSE':>8}{'drop':>7}   estimate [90%]")
+        if rnd.get("adequate"):
+            lines.append(f"    the model fits to within {diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor: "
+                         "no refit")
+            lines.append("")
+            continue
+        lines.append(f"    {'refit: effect':<26}{'LR':>9}{'p':>10}{'RMSE':>8}{'drop':>7}   estimate [90%]")
         for x in rnd["refits"]:
             est = "; ".join(f"{k} {v['mean']:.3g} [{v['interval90'][0]:.3g}, {v['interval90'][1]:.3g}]"
                             if v.get("interval90") else f"{k} {v['mean']:.3g} (no gain)"
                             for k, v in x["parameters"].items()) or "-"
             mark = "  <- supported" if x["supported"] else ""
-            lines.append(f"    {x['effect']:<26}{x['delta_loglik']:>9.1f}{x['p_value']:>10.2g}{x['rmse_after']:>8.3f}"
+            lines.append(f"    {x['effect']:<26}{x['lr_scaled']:>9.1f}{x['p_value']:>10.2g}{x['rmse_after']:>8.3f}"
                          f"{100 * x['rmse_drop']:>6.0f}%   {est}{mark}")
         if rnd.get("indistinguishable"):
             lines.append("    " + rnd["indistinguishable"]["message"])
@@ -140,12 +145,14 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
         suffix = f"_{j + 1}" if several else ""
         times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
         mask = np.asarray(obs.mask, bool)
-        sd_model = final.union.problems[j].likelihood.sd_model
         for label, fit in (("base", diag.fits[0]), ("final", final)):
             vf = fit.videos[j]
-            z = criticism.standardised_residuals(obs, vf.simulated, sd_model)
+            # the residuals the tests saw: the test likelihood's SDs (diagnosis module docstring)
+            ev = None if fit.union.sd_events is None else fit.union.sd_events[j]
+            sd_model = fit.union.sd_test if ev is not None else fit.union.problems[j].likelihood.sd_model
+            z = criticism.standardised_residuals(obs, vf.simulated, sd_model, ev)
             phases = criticism.motion_phases(vf.poses, obs.frame_times, obs.release_time, obs.n_objects)
-            table = criticism.residual_table(obs, vf.simulated, sd_model, phases)
+            table = criticism.residual_table(obs, vf.simulated, sd_model, phases, sd_events=ev)
             path = out / f"residuals_{label}{suffix}.png"
             residual_figure(path, times, z, phases, mask, f"{title}: {fit.name}", flagged=criticism.flagged(table))
             outputs[f"residuals_{label}{suffix}"] = str(path)

@@ -72,7 +72,7 @@ class ParamSpace:
         names: coordinate names in order, e.g. ``("k1", "k2", "phi")``.
         lower: (d,) lower bound of each coordinate.
         upper: (d,) upper bound of each coordinate.
-        kinds: per coordinate "friction", "phi", "mass", "release" or "effect".
+        kinds: per coordinate "friction", "phi", "mass", "release", "scale" or "effect".
         objects: per coordinate the object index (0 or 1; phi: -1).
         n_objects: number of objects in the scene.
         known_mass: (n_objects,) known mass in kg or None (free).
@@ -132,6 +132,10 @@ class ParamSpace:
             w = float(scene.simulation.release_window)
             names.append("dt_release"); lower.append(-w); upper.append(w)
             kinds.append("release"); objects.append(-1)
+        if scene.camera.scale_tolerance > 0:
+            tol = float(scene.camera.scale_tolerance)
+            names.append("scale_error"); lower.append(-tol); upper.append(tol)
+            kinds.append("scale"); objects.append(-1)
         for e in effects:
             for p in e.params:
                 names.append(p.name); lower.append(p.lower); upper.append(p.upper)
@@ -154,6 +158,14 @@ class ParamSpace:
     def n_physical(self) -> int:
         """Number of base-model coordinates (frictions, mass, release), before the effect parameters."""
         return self.effect_slice.start
+
+    def scale_factor(self, theta: jax.Array) -> jax.Array:
+        """(...,) factor 1 + ``scale_error`` by which the camera's scale stretches the observed
+        displacements (scene ``camera.scale_tolerance``); 1 if not fitted."""
+        theta = jnp.asarray(theta)
+        if "scale_error" not in self.names:
+            return jnp.ones(theta.shape[:-1], theta.dtype)
+        return 1.0 + theta[..., self.names.index("scale_error")]
 
     def release_offset(self, theta: jax.Array) -> jax.Array:
         """The release-time correction ``dt_release`` (s) of theta (..., d) -> (...); 0 if not fitted."""

@@ -150,7 +150,10 @@ class Camera(_Strict):
     down the ramp. ``roll_deg`` is the angle (degrees, counter-clockwise as seen in the image)
     by which the image's horizontal is rotated from the world horizontal. ``start_pixels``
     optionally gives each object's centre (u, v) in the first frame, else objects are found
-    automatically.
+    automatically. ``scale_tolerance`` (relative, e.g. 0.1 = 10%) says how uncertain the scale
+    is (a scale read off a hand-held ruler, a reference that is not in the plane of motion):
+    the fit then carries a nuisance ``scale_error`` uniform on +-tolerance, the observed
+    displacements being (1 + scale_error) times the true ones (0, the default: the scale is exact).
     """
 
     pixels_per_metre: PositiveFloat | None = None
@@ -159,6 +162,7 @@ class Camera(_Strict):
     roll_deg: float = Field(default=0.0, ge=-45, le=45)
     start_pixels: list[Pixel] | None = None
     foot_pixel: Pixel | None = None
+    scale_tolerance: float = Field(default=0.0, ge=0.0, le=0.3)
 
     @model_validator(mode="after")
     def _check_scale(self) -> "Camera":

@@ -141,3 +141,34 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose():
     # the base fit's residuals were flagged, the final ones look like noise
     assert not diag.fits[0].criticism["looks_like_noise"]
     assert diag.final.criticism["looks_like_noise"]
+
+
+def test_scaled_lr_is_calibrated_when_the_noise_scale_is_wrong():
+    """The LR with per-trace noise scales from the alternative's residuals (:func:`scaled_lr`)
+    is chi-square(1) under "no effect" when the assumed noise SD is wrong by one factor for
+    every trace, and conservative when the factors differ between traces (the fit's weights
+    are then not the optimal ones: the statistic is at most the optimally weighted chi-square).
+    The plain LR with an SD 3x too small has a false-alarm rate of ~50% instead of 5%."""
+    from galileo_jax.inference.screen import scaled_lr
+
+    rng = np.random.default_rng(0)
+    n_per, reps = 60, 4000
+    groups = np.repeat([0, 1], n_per)
+    x = np.linspace(-1, 1, 2 * n_per)
+    q95 = stats.chi2.ppf(0.95, 1)
+    for true_sd, lo, hi in ((np.full(2 * n_per, 3.0), 0.035, 0.065),              # one factor: calibrated
+                            (np.where(groups == 0, 0.25, 3.0), 0.0, 0.065)):     # 4x and 1/3x: conservative
+        plain, scaled = [], []
+        for _ in range(reps):
+            r0 = rng.normal(0, true_sd)              # base model: no effect, residuals = noise
+            beta = np.sum(x * r0) / np.sum(x * x)    # alternative: one more direction, fitted
+            r1 = r0 - beta * x
+            plain.append(np.sum(r0**2) - np.sum(r1**2))
+            scaled.append(scaled_lr(r0, r1, groups, 1)[0])
+        assert lo <= np.mean(np.asarray(scaled) > q95) <= hi
+        assert np.mean(np.asarray(plain) > q95) > 0.3
+    # a real effect still stands out: a trend of 1 SD at the ends of every trace (SD 3x misstated)
+    r0 = rng.normal(0, 3.0, x.size) + 3.0 * x
+    beta = np.sum(x * r0) / np.sum(x * x)
+    lr, phi = scaled_lr(r0, r0 - beta * x, groups, 1)
+    assert lr > 20 and phi == pytest.approx([9.0, 9.0], rel=0.35)

@@ -220,3 +220,34 @@ def test_unconstrained_transform_and_jacobian():
     dens = np.exp(np.asarray(sp2.log_prior(jnp.asarray(zz))))  # frictions at z = 0 contribute log(1/4)
     assert np.trapezoid(dens, z[:, 0]) == pytest.approx(1.0 / 16.0, rel=1e-3)
     assert math.isinf(float(sp2.log_prior_theta(jnp.array([0.2, 0.3, 1.5]))))
+
+
+def test_event_sd_marks_velocity_jumps_of_simulation_and_observation():
+    """Contact events: the samples around a jump of an object's velocity get SD fraction x jump
+    (capped); steady acceleration, a small kink and noise get none."""
+    from galileo_jax.likelihood import EVENT_CAP, EVENT_FRACTION, event_jumps, event_sd
+
+    n = 30
+    t = np.arange(n) / FPS
+    sim = np.zeros((4, n))
+    sim[0] = 2.0 * t                       # object 1: steady acceleration ...
+    sim[0, 15:] = 0.4 * sim[0, 15:]        # ... until an impact at sample 15 (jump ~0.6 m/s)
+    sim[2, 15:] = 0.7                      # object 2 starts at the impact
+    sim[2, 22:] = 0.7 - 0.1                # a small kink (0.1 m/s): not an event
+    jumps = event_jumps(sim)
+    assert jumps.shape == (2, n)
+    assert np.flatnonzero(jumps[0]).tolist() == [14, 15] and np.flatnonzero(jumps[1]).tolist() == [14, 15]
+    sd = event_sd(sim, halfwidth=1)
+    assert sd.shape == sim.shape
+    assert np.all(sd[0] == sd[1]) and np.all(sd[2] == sd[3])      # both traces of an object
+    assert np.flatnonzero(sd[0]).tolist() == [13, 14, 15, 16]       # events +- 1 sample
+    assert sd[2, 15] == pytest.approx(min(EVENT_FRACTION * jumps[1].max(), EVENT_CAP))
+    assert np.all(sd[:, :12] == 0) and np.all(sd[:, 18:] == 0)
+    # the observed profile adds its own jumps only where they stand out of its noise
+    rng = np.random.default_rng(0)
+    obs = sim + rng.normal(0, 0.003, sim.shape)
+    obs[0, 25:] += 0.5                                            # an impact the simulation lacks
+    sd2 = event_sd(sim, obs, np.full(4, 0.003), halfwidth=1)
+    assert np.flatnonzero(sd2[0]).tolist() == [13, 14, 15, 16, 23, 24, 25, 26]
+    noisy = event_sd(sim, sim + rng.normal(0, 0.05, sim.shape), np.full(4, 0.05), halfwidth=1)
+    assert np.array_equal(noisy, sd)                               # 0.05 m/s noise: threshold 0.8 m/s

@@ -43,9 +43,10 @@ import numpy as np
 from galileo_jax.inference.problem import DEFAULT_FD_STEP, BatchedAPI, Problem, check_residual_args, fd_jacobian_fn
 from galileo_jax.params import BoxSpaceMethods, ParamSpace
 
-#: Parameters that are per-video unless stated otherwise: the release-time correction and the
-#: ``initial_push`` release speed (every release by hand differs).
-DEFAULT_PER_VIDEO = ("dt_release", "v0")
+#: Parameters that are per-video unless stated otherwise: the release-time correction, the
+#: camera's scale error and the ``initial_push`` release speed (every release by hand differs,
+#: every clip has its own calibration).
+DEFAULT_PER_VIDEO = ("dt_release", "scale_error", "v0")
 
 
 def joint_name(name: str, video: int) -> str:

@@ -177,10 +177,12 @@ class Engine:
         return velocity_profile(self.sim, params, data.frame_times, data.release_time, self.n_steps)
 
     def profile_theta(self, theta: jax.Array, data: ProblemData) -> jax.Array:
-        """Unbatched simulated profile (2n, M) at theta (d,) (pure); the release time is the
-        tracker's estimate plus theta's ``dt_release``."""
+        """Unbatched simulated profile (2n, M) at theta (d,) (pure), as the camera sees it: the
+        release time is the tracker's estimate plus theta's ``dt_release``, velocities are
+        stretched by the scale factor 1 + ``scale_error`` (1 when the scale is exact)."""
         release = data.release_time + self.space.release_offset(theta)
-        return velocity_profile(self.sim, self.space.physical(theta), data.frame_times, release, self.n_steps)
+        profile = velocity_profile(self.sim, self.space.physical(theta), data.frame_times, release, self.n_steps)
+        return profile * self.space.scale_factor(theta)
 
     def profile_z(self, z: jax.Array, data: ProblemData) -> jax.Array:
         """Unbatched simulated profile (2n, M) at unconstrained z (d,) (pure, fit window)."""
@@ -196,9 +198,13 @@ class Engine:
         return data.likelihood.residuals(self.profile_z(z, data))
 
     def poses(self, theta: jax.Array, data: ProblemData) -> jax.Array:
-        """(M + 1, n_objects, 3) simulated poses (x m, z m, pitch rad) at the frame times (pure)."""
+        """(M + 1, n_objects, 3) simulated poses (x m, z m, pitch rad) at the frame times (pure),
+        as the camera sees them: displacements from the start stretched by 1 + ``scale_error``."""
         traj = rollout(self.sim, self.space.physical(theta), self.n_steps)
-        return sample_poses(traj, data.frame_times - data.release_time - self.space.release_offset(theta))
+        poses = sample_poses(traj, data.frame_times - data.release_time - self.space.release_offset(theta))
+        start = poses[:1, :, :2]
+        xy = start + self.space.scale_factor(theta) * (poses[..., :2] - start)
+        return poses.at[..., :2].set(xy)
 
 
 _ENGINES: "OrderedDict[tuple, Engine]" = OrderedDict()
@@ -221,7 +227,7 @@ def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_bat
     rollouts cover ``seconds`` after the release plus the release-time window."""
     early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
     length = _blocks(seconds + early, fps)
-    key = (scene_key(scene), float(fps), tuple(effects), length, int(max_batch))
+    key = (scene_key(scene), float(scene.camera.scale_tolerance), float(fps), tuple(effects), length, int(max_batch))
     if key in _ENGINES:
         _ENGINES.move_to_end(key)
         return _ENGINES[key]

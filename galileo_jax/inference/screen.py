@@ -104,6 +104,49 @@ def lr_pvalue(lr: float, df: int, boundary: bool) -> float:
     return 0.5 * p if boundary else p
 
 
+def scaled_lr(r_base: np.ndarray, r_alt: np.ndarray, groups: np.ndarray, n_params: int,
+              min_dispersion: float = 1.0) -> tuple[float, np.ndarray]:
+    """Likelihood-ratio statistic with each trace's noise scale estimated from the alternative's residuals.
+
+    The Gaussian LR = |r_base|^2 - |r_alt|^2 is chi-square only if the residuals' SDs are
+    right; a tracker's noise estimate can be off by several times either way. As in the
+    extra-sum-of-squares F test for nested (non)linear least squares (Bates & Watts,
+    *Nonlinear Regression Analysis and Its Applications*, 1988, 3.5; quasi-likelihood: McCullagh
+    & Nelder, *Generalized Linear Models*, 2nd ed. 1989, 9.3), each group g (a velocity trace)
+    gets the dispersion phi_g = |r_alt,g|^2 / (n_g - n_params n_g / n) of the LARGER model, and
+
+        LR_scaled = sum_g (|r_base,g|^2 - |r_alt,g|^2) / phi_g,
+
+    referred to chi-square (or the boundary mixture) as usual. A candidate that fits badly
+    inflates its own phi and so its own statistic shrinks, which also helps to rank the true
+    effect first. phi_g is not allowed below ``min_dispersion`` (1: the stated noise is taken
+    as a lower bound): a noise estimate that is too LARGE then keeps the test conservative
+    instead of multiplying the statistic by an unreliable ratio (measured on rendered video: a
+    resting object's trace with phi = 0.02 turned a 0.0016 m/s RMSE gain into LR = 1927).
+
+    Args:
+        r_base, r_alt: (n,) standardised residuals of the two models at the same samples.
+        groups: (n,) integer group (trace) of every sample.
+        n_params: free parameters of the alternative (degrees of freedom spent, shared out
+            over the groups in proportion to their size).
+        min_dispersion: smallest phi_g.
+
+    Returns:
+        (LR_scaled, phi (G,) per group in the order of ``np.unique(groups)``).
+    """
+    r0, r1, g = (np.asarray(x) for x in (r_base, r_alt, groups))
+    lr, phis = 0.0, []
+    n = r1.size
+    for gid in np.unique(g):
+        sel = g == gid
+        ng = int(sel.sum())
+        dof = max(ng - n_params * ng / n, 1.0)
+        phi = max(float(np.sum(r1[sel] ** 2)) / dof, min_dispersion)
+        phis.append(phi)
+        lr += float(np.sum(r0[sel] ** 2) - np.sum(r1[sel] ** 2)) / phi
+    return lr, np.asarray(phis)
+
+
 def vuong_test(r_alt: np.ndarray, r_base: np.ndarray) -> tuple[float, float]:
     """Vuong's non-nested test that the alternative fits better than the base.
 

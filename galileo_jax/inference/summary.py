@@ -65,12 +65,14 @@ def _draw_stats(x: np.ndarray, best: float | None, rhat: float, ess: float, **kw
 
 
 def _effect_names(space: ParamSpace) -> list[str]:
-    """The coordinates reported as they are: the release-time correction and the effect parameters."""
-    return [n for n, k in zip(space.names, space.kinds) if k in ("release", "effect")]
+    """The coordinates reported as they are: the release-time correction, the scale error and the effect parameters."""
+    return [n for n, k in zip(space.names, space.kinds) if k in ("release", "scale", "effect")]
 
 
 #: Report note of the release-time correction.
 RELEASE_NOTE = "release time minus the tracker's estimate (s), fitted with the physics"
+#: Report note of the camera's scale error.
+SCALE_NOTE = "relative error of the camera's scale (observed / true displacement - 1), within +-camera.scale_tolerance"
 
 
 def _effect_note(name: str) -> str:
@@ -79,6 +81,8 @@ def _effect_note(name: str) -> str:
 
     if name == "dt_release":
         return RELEASE_NOTE
+    if name == "scale_error":
+        return SCALE_NOTE
     for e in available_effects().values():
         for p in e.params:
             if p.name == name:
