@@ -462,11 +462,9 @@ class ResidualRow:
 
 
 def _row(trace: str, obj: int, axis: str, phase: str, idx: np.ndarray, obs: np.ndarray, sim: np.ndarray,
-         s: np.ndarray, vsd: float, dt: np.ndarray) -> ResidualRow:
+         s: float, rho: float, dt: np.ndarray) -> ResidualRow:
     r = obs[idx] - sim[idx]
-    s = np.asarray(s, np.float64)[idx]
     z = r / s
-    rho = float(np.mean(-0.5 * vsd**2 / s**2))  # lag-1 correlation under the model (per-sample SDs averaged)
     p_runs = runs_test(z)
     rho_hat, p_lag1 = lag1_test(z, idx, rho)
     cus, p_cusum = cusum_test(z, idx, rho)
@@ -476,7 +474,7 @@ def _row(trace: str, obj: int, axis: str, phase: str, idx: np.ndarray, obs: np.n
     return ResidualRow(
         trace=trace, object=obj, axis=axis, phase=phase, n=int(idx.size),
         rms_z=float(np.sqrt(np.mean(z**2))), mean_z=float(np.mean(z)),
-        rmse=float(np.sqrt(np.mean(r**2))), rmse_expected=float(np.sqrt(np.mean(s**2))), mean_offset=float(np.mean(r)),
+        rmse=float(np.sqrt(np.mean(r**2))), rmse_expected=float(s), mean_offset=float(np.mean(r)),
         sim_mean_velocity=float(np.mean(sim[idx])),
         obs_displacement=float(np.sum(obs[idx] * dt[idx])), sim_displacement=float(np.sum(sim[idx] * dt[idx])),
         rho_expected=float(rho), rho_hat=float(rho_hat), cusum=float(cus), chi2=float(chi),
@@ -484,8 +482,7 @@ def _row(trace: str, obj: int, axis: str, phase: str, idx: np.ndarray, obs: np.n
 
 
 def residual_table(observation: Observation, simulated: np.ndarray, sd_model: float = SD_MODEL,
-                   phases: np.ndarray | None = None, alpha: float = 0.01,
-                   sd_events: np.ndarray | None = None) -> list[ResidualRow]:
+                   phases: np.ndarray | None = None, alpha: float = 0.01) -> list[ResidualRow]:
     """Residual summary and structure tests per trace and motion phase.
 
     For each trace (rows of the profile: "object 1 x", "object 1 y", ...) one row per phase
@@ -501,8 +498,6 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
         sd_model: model-error floor of the likelihood, m/s.
         phases: (n, N-1) phase labels (:func:`motion_phases`); None gives the "all" rows only.
         alpha: family-wise significance level of the whole table.
-        sd_events: optional (2n, N-1) extra model-error SD (m/s) around contact events
-            (:func:`sample_sd`); a row's lag-1 correlation is then the mean of the per-sample ones.
 
     Returns:
         List of :class:`ResidualRow`, ordered by trace, then phase in :data:`PHASES` order, then "all".
@@ -525,9 +520,9 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
         phases = np.asarray(phases)
         if phases.shape != (n_obj, m):
             raise ValueError(f"phases has shape {phases.shape}, expected ({n_obj}, {m})")
-    standardised_residuals(observation, sim, sd_model, sd_events)  # validates shapes and noise
-    s = sample_sd(observation, sd_model, sd_events)
-    vsd = np.asarray(observation.velocity_sd, np.float64)
+    standardised_residuals(observation, sim, sd_model)  # validates shapes and noise
+    s = residual_sd(observation, sd_model)
+    rho = expected_lag1(observation, sd_model)
     dt = np.diff(np.asarray(observation.frame_times, np.float64))
     names = trace_names(n_obj)
     rows: list[ResidualRow] = []
@@ -542,7 +537,7 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
             idx = np.flatnonzero(sel)
             if idx.size < (MIN_SAMPLES if phase != ALL else 1):
                 continue
-            rows.append(_row(names[i], obj, axis, phase, idx, obs[i], sim[i], s[i], float(vsd[i]), dt))
+            rows.append(_row(names[i], obj, axis, phase, idx, obs[i], sim[i], float(s[i]), float(rho[i]), dt))
     n_tests = sum(int(np.isfinite([getattr(r, f"p_{t}") for t in TESTS]).sum()) for r in rows)
     out = []
     for r in rows:
@@ -644,8 +639,7 @@ def verdict(table: Sequence[ResidualRow], min_displacement: float = MIN_DISPLACE
 
 
 def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray, sd_model: float = SD_MODEL,
-              alpha: float = 0.01, rest_speed: float = REST_SPEED, collision_halfwidth: int = 2,
-              sd_events: np.ndarray | None = None) -> dict[str, Any]:
+              alpha: float = 0.01, rest_speed: float = REST_SPEED, collision_halfwidth: int = 2) -> dict[str, Any]:
     """Criticise a fit: phases, residual table and verdict, as JSON-ready values.
 
     Args:
@@ -656,7 +650,6 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
         alpha: family-wise significance level.
         rest_speed: speed (m/s) below which a simulated object is at rest.
         collision_halfwidth: half-width of the collision window in samples.
-        sd_events: optional (2n, N-1) extra model-error SD around contact events (:func:`sample_sd`).
 
     Returns:
         {"phases": {"order", "labels" (n lists of N-1 names), "spans" (per object, list of
@@ -668,7 +661,7 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
     t = np.asarray(observation.frame_times, np.float64)
     phases = motion_phases(poses, t, observation.release_time, observation.n_objects, rest_speed,
                            collision_halfwidth)
-    table = residual_table(observation, simulated, sd_model, phases, alpha, sd_events)
+    table = residual_table(observation, simulated, sd_model, phases, alpha)
     mid = 0.5 * (t[1:] + t[:-1])
     kc = impact_sample(poses, t, observation.release_time, rest_speed)
 

@@ -50,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--effects", help="candidate effects, comma-separated (default: all that apply)")
     p.add_argument("--per-video", help="with several videos: parameters fitted per video, comma-separated "
                                        "(default: all shared except v0)")
-    p.add_argument("--refits", type=int, default=3, help="candidates refitted after the screen (default 3)")
+    p.add_argument("--refits", type=int, default=6, help="candidates with a parameter refitted after the screen "
+                                                     "(default 6: all shipped ones)")
     p.add_argument("--max-effects", type=int, default=1, help="effects added one after another at most (default 1)")
     p.add_argument("--alpha", type=float, default=0.05, help="false-alarm rate of 'an effect is missing' (default 0.05)")
     p.add_argument("--out", help="output folder (default: <first video>_diagnose next to it)")
@@ -145,14 +146,12 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
         suffix = f"_{j + 1}" if several else ""
         times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
         mask = np.asarray(obs.mask, bool)
+        sd_model = final.union.problems[j].likelihood.sd_model
         for label, fit in (("base", diag.fits[0]), ("final", final)):
             vf = fit.videos[j]
-            # the residuals the tests saw: the test likelihood's SDs (diagnosis module docstring)
-            ev = None if fit.union.sd_events is None else fit.union.sd_events[j]
-            sd_model = fit.union.sd_test if ev is not None else fit.union.problems[j].likelihood.sd_model
-            z = criticism.standardised_residuals(obs, vf.simulated, sd_model, ev)
+            z = criticism.standardised_residuals(obs, vf.simulated, sd_model)
             phases = criticism.motion_phases(vf.poses, obs.frame_times, obs.release_time, obs.n_objects)
-            table = criticism.residual_table(obs, vf.simulated, sd_model, phases, sd_events=ev)
+            table = criticism.residual_table(obs, vf.simulated, sd_model, phases)
             path = out / f"residuals_{label}{suffix}.png"
             residual_figure(path, times, z, phases, mask, f"{title}: {fit.name}", flagged=criticism.flagged(table))
             outputs[f"residuals_{label}{suffix}"] = str(path)
