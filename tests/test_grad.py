@@ -119,3 +119,35 @@ def test_grad_with_held_parameters(problem):
         fit_grad(problem, jax.random.key(1), fixed={"k1": 5.0})  # outside [0, 1]
     with pytest.raises(ValueError, match="cannot hold"):
         fit_grad(problem, jax.random.key(1), fixed={"drag": 0.1})
+
+
+def test_local_screen_draws_near_the_start_except_effect_parameters():
+    """``latin_hypercube_starts(around=...)``: base coordinates within +-spread of their range
+    around the start (clipped to the bounds), effect parameters over their whole range, one
+    point per stratum of every coordinate (a Latin hypercube)."""
+    from galileo_jax.inference.grad import latin_hypercube_starts
+    from galileo_jax.params import ParamSpace
+
+    scene = scene_from_dict({"ramp": {"angle_deg": 20, "length": 2.0},
+                             "objects": [{"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.5},
+                                         {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.15}],
+                             "camera": {"pixels_per_metre": 500}})
+    from galileo_jax.effects import get_effect
+
+    space = ParamSpace.from_scene(scene, (get_effect("ramp_friction"),))
+    assert space.names == ("k1", "k2", "phi", "dt_release", "dk_ramp")
+
+    class P:
+        dim = space.dim
+
+    P.space = space
+    around = np.array([0.9, 0.3, 0.0, 0.0, 0.0])
+    x = np.asarray(latin_hypercube_starts(P, jax.random.key(0), 200, around=around, spread=0.25))
+    lo, hi = np.asarray(space.lower), np.asarray(space.upper)
+    assert np.all(x >= lo) and np.all(x <= hi)
+    span = hi - lo
+    assert np.all(np.abs(x[:, :3] - around[:3]) <= 0.25 * span[:3] + 1e-12)
+    assert x[:, 0].min() > 0.9 - 0.25 * span[0] - 1e-12 and x[:, 0].max() <= hi[0]
+    assert x[:, 4].min() < lo[4] + 0.1 * span[4] and x[:, 4].max() > hi[4] - 0.1 * span[4]  # the effect: whole range
+    strata = np.floor(((x[:, 4] - lo[4]) / span[4] - 0.05) / 0.9 * 200)  # the default 5% margin
+    assert len(np.unique(strata)) == 200

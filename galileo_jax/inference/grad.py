@@ -116,9 +116,15 @@ class GradResult(NamedTuple):
 RELEASE_START_FRACTION = 0.1
 
 
-def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05) -> jax.Array:
+def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05,
+                           around: np.ndarray | None = None, spread: float = 0.25) -> jax.Array:
     """n starting points theta (n, d), a Latin hypercube over the bounds (shrunk by ``margin``;
-    a release-time coordinate over :data:`RELEASE_START_FRACTION` of its range around 0)."""
+    a release-time coordinate over :data:`RELEASE_START_FRACTION` of its range around 0).
+
+    With ``around`` (d,), every coordinate except the effect parameters is drawn within
+    +-``spread`` of its range around ``around`` (clipped to the bounds): a local screen for
+    refitting a model plus one effect near the model's estimate, where the effect's value is
+    unknown but the other parameters move only as far as the effect makes them."""
     d = problem.dim
     k_perm, k_u = jax.random.split(key)
     perms = jnp.stack([jax.random.permutation(k, n) for k in jax.random.split(k_perm, d)], axis=1)
@@ -127,7 +133,13 @@ def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05
     lo, hi = problem.space._bounds()
     release = jnp.asarray([k == "release" for k in problem.space.kinds])
     u = jnp.where(release, 0.5 + RELEASE_START_FRACTION * (u - 0.5), u)
-    return lo + (hi - lo) * u
+    if around is None:
+        return lo + (hi - lo) * u
+    effect = jnp.asarray([k == "effect" for k in problem.space.kinds])
+    a_lo = jnp.maximum(lo, jnp.asarray(around) - spread * (hi - lo))
+    a_hi = jnp.minimum(hi, jnp.asarray(around) + spread * (hi - lo))
+    a_lo, a_hi = a_lo + margin * (a_hi - a_lo), a_hi - margin * (a_hi - a_lo)
+    return jnp.where(effect, lo + (hi - lo) * u, a_lo + (a_hi - a_lo) * (u - margin) / (1.0 - 2.0 * margin))
 
 
 def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
@@ -165,7 +177,8 @@ INIT_MARGIN = 0.01
 def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
              init: np.ndarray | None = None, fixed: dict[str, float] | None = None,
              jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
-             max_steps: int = 40, polish_rounds: int = 3, polish_points: int = 64) -> GradResult:
+             max_steps: int = 40, polish_rounds: int = 3, polish_points: int = 64,
+             local_screen: float | None = None) -> GradResult:
     """Multi-start Levenberg-Marquardt maximum-likelihood fit with a Gauss-Newton uncertainty.
 
     Arguments:
@@ -190,6 +203,9 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         max_steps: LM step limit per start.
         polish_rounds, polish_points: after LM, rounds of a batched local random search
             (:func:`polish`; 0 rounds switch it off).
+        local_screen: with ``init``, screen the starts within +-``local_screen`` of each
+            range around ``init`` instead of over the whole prior box, effect parameters
+            excepted (:func:`latin_hypercube_starts`).
 
     Returns:
         :class:`GradResult`.
@@ -214,7 +230,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
             init = init[list(sub.free)]
         res = fit_grad(sub, key, n_starts=n_starts, n_screen=n_screen, init=init, jacobian=jacobian,
                        fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps, polish_rounds=polish_rounds,
-                       polish_points=polish_points)
+                       polish_points=polish_points, local_screen=local_screen)
         return _expand(res, sub)
     space = problem.space
     d = space.dim
@@ -236,7 +252,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         starts.append(jnp.asarray(init)[None])
     t0 = time.perf_counter()
     if n_starts > 0:
-        cand = latin_hypercube_starts(problem, key, n_screen)
+        around = None if (local_screen is None or init is None) else init
+        cand = latin_hypercube_starts(problem, key, n_screen, around=around, spread=local_screen or 0.25)
         ll = np.asarray(problem.log_likelihood(space.to_unconstrained(cand)))
         ll = np.where(np.isfinite(ll), ll, -np.inf)
         starts.append(cand[np.argsort(-ll, kind="stable")[:n_starts]])
