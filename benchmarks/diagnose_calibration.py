@@ -87,6 +87,8 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> dic
             "refits": [{k: x.get(k) for k in ("effect", "delta_loglik", "lr_scaled", "p_value", "rmse_after", "supported")}
                        for x in (diag.rounds[0]["refits"] if diag.rounds else [])],
             "screen": screen, "verdict_base": d["verdict_base"], "verdict_final": d["verdict_final"],
+            "fitted": {f.name: {n: [float(v), float(lo), float(hi)] for n, v, (lo, hi) in
+                                zip(f.result.names, f.result.theta, f.result.interval90)} for f in diag.fits},
             "render_s": t_render, "diagnose_s": time.perf_counter() - t1, "timings": diag.timings}
 
 
@@ -157,6 +159,18 @@ def main(argv=None) -> int:
     return 0
 
 
+def _named_fit(record: dict) -> str:
+    """The named effect's fitted parameters with their 90% intervals ('-' if none, or not recorded)."""
+    from galileo_jax.effects import get_effect
+
+    name = record.get("named_first")
+    fit = record.get("fitted", {}).get(f"base + {name}") if name else None
+    if not fit:
+        return "-"
+    params = [p.name for p in get_effect(name).params]
+    return ", ".join(f"{p} {fit[p][0]:.3g} [{fit[p][1]:.3g}, {fit[p][2]:.3g}]" for p in params if p in fit) or "-"
+
+
 def write_tables(work: Path) -> None:
     """Summarise every record under ``work`` into benchmarks/results/diagnose_calibration.{md,json}."""
     records = [json.loads(p.read_text()) for p in sorted(work.glob("*.json")) if not p.name.endswith(".truth.json")]
@@ -179,11 +193,11 @@ def write_tables(work: Path) -> None:
                      f"{row.get('median_drop_factor', nan):.2f} | {row.get('median_final_over_floor', nan):.2f} | "
                      f"{row.get('median_final_over_attainable', nan):.2f} | {row['median_diagnose_s']:.0f} |")
     lines += ["", "Per video (RMSE in m/s: base fit -> final model, noise floor, attainable):", "",
-              "| video | hidden value | named first | tied | RMSE base -> final (floor, attainable) | time (s) |",
-              "|---|---|---|---|---|---|"]
+              "| video | hidden value | named first | its fit (90%) | tied | RMSE base -> final (floor, attainable) "
+              "| time (s) |", "|---|---|---|---|---|---|---|"]
     for r in records:
         hidden = ", ".join(f"{k} {v:.3g}" for k, v in r["truth"].items() if k not in ("m1", "k1", "m2", "k2")) or "-"
-        lines.append(f"| {r['effect']}_{r['index']} | {hidden} | {r['named_first'] or 'none'} | "
+        lines.append(f"| {r['effect']}_{r['index']} | {hidden} | {r['named_first'] or 'none'} | {_named_fit(r)} | "
                      f"{', '.join(r['tied']) or '-'} | {r['rmse_base']:.4f} -> {r['rmse_final']:.4f} "
                      f"({r['noise_floor']:.4f}, {r.get('attainable_rmse', nan):.4f}) | {r['diagnose_s']:.0f} |")
     (RESULTS / "diagnose_calibration.md").write_text("\n".join(lines) + "\n")
