@@ -88,11 +88,19 @@ def summary_text(diag, videos: list[Path]) -> str:
             for r in rnd["screen"]:
                 lines.append(f"    {r['effect']:<26}{r['score']:>9.1f}{r['p_value']:>10.2g}{r['grid_gain']:>11.1f}"
                              f"{r['best_value']:>8.3g}")
+        if rnd.get("null_refit"):
+            nr = rnd["null_refit"]
+            lines.append(f"    the {rnd['base']} model, refitted from {nr['from_effect']}'s estimate, found a better optimum "
+                         f"(log L {nr['loglik_before']:.1f} -> {nr['loglik_after']:.1f}, RMSE {nr['rmse_before']:.4f} -> "
+                         f"{nr['rmse_after']:.4f} m/s): the tests below are against it")
         if rnd.get("adequate"):
-            lines.append(f"    the model fits to within {diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor: "
-                         "no refit")
-            lines.append("")
-            continue
+            lines.append(f"    away from contact events the model fits to within "
+                         f"{diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor (RMSE "
+                         f"{rnd['calm_rmse']:.4f} m/s on {100 * rnd['calm_fraction']:.0f}% of the samples): "
+                         + ("no refit" if not rnd["refits"] else "no effect is needed"))
+            if not rnd["refits"]:
+                lines.append("")
+                continue
         lines.append(f"    {'refit: effect':<26}{'LR':>9}{'p':>10}{'RMSE':>8}{'drop':>7}   estimate [90%]")
         for x in rnd["refits"]:
             est = "; ".join(f"{k} {v['mean']:.3g} [{v['interval90'][0]:.3g}, {v['interval90'][1]:.3g}]"

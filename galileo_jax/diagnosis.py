@@ -7,9 +7,13 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    Levenberg-Marquardt (:func:`~galileo_jax.inference.grad.fit_grad`).
 2. **Criticism**: residuals per motion phase and trace with tests for structure
    (:mod:`galileo_jax.criticism`) and a one-line verdict.
-3. **Adequate?** A model whose RMSE is within ``adequate_ratio`` (1.3) of the tracker's noise
-   floor leaves nothing for an effect to explain: the answer is "no missing effect" and no
-   refit runs. (Measured on rendered videos without a hidden effect: the base RMSE was
+3. **Adequate?** A model whose RMSE away from contact events (samples more than one frame
+   from a velocity jump of :data:`GATE_JUMP` or more, :func:`calm_rmse`) is within
+   ``adequate_ratio`` (1.3) of the tracker's noise floor leaves nothing for an effect to
+   explain: the answer is "no missing effect" and no refit runs. Contact events are left out
+   because there the simulator itself is inexact (next paragraph and
+   :func:`~galileo_jax.likelihood.event_sd`); an effect that acts at an impact (restitution)
+   still shows in every later sample. (Measured on rendered videos without a hidden effect: the base RMSE was
    0.4-1.3x the floor, except where the fitting simulator (MJX) and the renderer (C MuJoCo)
    disagree, e.g. around a second collision: 2.3x.)
 4. **Screen**: for every candidate effect with a parameter, the score statistic of
@@ -19,7 +23,11 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    one batched set of rollouts. It orders the refits and is reported; it decides nothing.
 5. **Refit** the ``refits`` best-scoring candidates (by default all of them) and every
    structural effect, which the screen cannot rank, from the current estimate plus the
-   screen's step (and a few screened starts).
+   screen's step (and a few screened starts). The current model is then refitted once from
+   the best refit's estimate with the effect held neutral (:func:`refit_null`): a
+   likelihood-ratio test needs the null at its maximum, and a base fit stuck in a worse
+   optimum makes every effect look needed. If that finds a better optimum, the tests are
+   redone against it (and the adequacy check of step 3 is applied again).
 6. **Decide**: an effect is *supported* when its likelihood-ratio test against the current
    model, on the residuals of the *test likelihood* (below), with each trace's noise scale
    estimated from the alternative's residuals (:func:`~galileo_jax.inference.screen.scaled_lr`,
@@ -359,6 +367,28 @@ def event_sds(base: ModelFit, observations) -> list[np.ndarray]:
     return [event_sd(v.simulated, o.profile, o.velocity_sd) for v, o in zip(base.videos, observations)]
 
 
+#: Velocity jump (m/s) that marks a contact event for the adequacy check (step 3 of the module
+#: docstring). Lower than the test likelihood's EVENT_JUMP: a gentle second collision (a 0.09 m/s
+#: jump, rendered video without a hidden effect) that MJX resolves one frame off the renderer
+#: leaves a residual as large as the jump itself (0.11 m/s measured).
+GATE_JUMP = 0.05
+
+
+def calm_masks(base: ModelFit, observations) -> list[np.ndarray]:
+    """Per video the (2n, N-1) bool mask of fitted samples away from contact events (a velocity
+    jump of at least :data:`GATE_JUMP` in ``base``'s simulated or the observed profile, and one
+    sample on either side; :func:`galileo_jax.likelihood.event_sd`)."""
+    return [(event_sd(v.simulated, o.profile, o.velocity_sd, jump=GATE_JUMP) == 0) & np.asarray(o.mask, bool)[None]
+            for v, o in zip(base.videos, observations)]
+
+
+def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
+    """(RMSE in m/s over the samples of ``masks``, the fraction of fitted samples they hold)."""
+    d = np.concatenate([(np.asarray(o.profile) - v.simulated)[m] for v, o, m in zip(fit.videos, observations, masks)])
+    n = sum(int(np.sum(o.mask)) * np.asarray(o.profile).shape[0] for o in observations)
+    return (float(np.sqrt(np.mean(d**2))) if d.size else fit.rmse), d.size / max(n, 1)
+
+
 def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, init: np.ndarray | None = None,
               starts: int | None = None, screen: int | None = None) -> ModelFit:
     """Fit base + ``free_effects`` inside ``union`` and evaluate it (residuals, profiles, criticism)."""
@@ -546,6 +576,30 @@ def _refit_init(union: Union, current: ModelFit, effect: Effect, screen_rows: li
     return moved if ll[1] > ll[0] else theta
 
 
+def refit_null(union: Union, current: ModelFit, tests: list[dict], fits: list[ModelFit], added, settings,
+               key) -> tuple[ModelFit, str] | None:
+    """Refit the current model from the best alternative's estimate, its effect held neutral.
+
+    A likelihood-ratio test needs the null model at its maximum. The rough cost surface can
+    leave the base fit in a worse local optimum than the one an alternative's refit found for
+    the shared parameters (a rendered video without a hidden effect: base k1 0.034, k2 0.066,
+    RMSE 0.0225 m/s; the linear-drag refit moved to k1 0.021, k2 0.061, near the true 0.022,
+    0.086); every effect then looks needed. One LM run from the best parametric alternative
+    (same ``union``), with the effect's coordinates fixed at neutral, checks this.
+
+    Returns:
+        (the better fit, the effect whose estimate it started from), or None when the current
+        fit is already at least as good.
+    """
+    cands = [x for x in tests if fits[x["fit_index"]].union is union and x["delta_loglik"] > 0]
+    if not cands:
+        return None
+    best = max(cands, key=lambda x: x["delta_loglik"])
+    new = fit_model(union, tuple(added), settings, key, init=np.asarray(fits[best["fit_index"]].result.theta),
+                    starts=0)
+    return (new, best["effect"]) if new.loglik > current.loglik + 1e-6 else None
+
+
 def nested_floor(current: ModelFit, alt: ModelFit, effect: Effect) -> ModelFit:
     """The nested model at its neutral values, when its refit ended below ``current``.
 
@@ -653,6 +707,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
     if settings.events:  # the test likelihood's event SDs come from the base fit (module docstring)
         union.sd_events = event_sds(current, observations)
         current = evaluate(union, current.result, (), settings)
+    masks = calm_masks(current, observations)
     fits = [current]
     timings["base_fit_s"] = time.perf_counter() - t0
     m = max(len(all_candidates), 1)
@@ -671,9 +726,11 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         order = list(dict.fromkeys(row["effect"] for row in screen))
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
-        if current.rmse <= settings.adequate_ratio * floor:  # adequate: nothing left to explain
+        calm = calm_rmse(current, observations, masks)
+        if calm[0] <= settings.adequate_ratio * floor:  # adequate: nothing left to explain
             rounds.append({"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
-                           "refits": [], "winner": None, "indistinguishable": None, "adequate": True})
+                           "refits": [], "winner": None, "indistinguishable": None, "adequate": True,
+                           "calm_rmse": calm[0], "calm_fraction": calm[1]})
             break
         tests = []
         for i, name in enumerate(chosen):
@@ -699,9 +756,34 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
             test["supported"] = bool(test["p_value"] < threshold and test["rmse_drop"] >= settings.min_rmse_drop)
             tests.append(test)
         timings[f"round{rnd + 1}_refits_s"] = time.perf_counter() - t
+        null_refit = None
+        better = refit_null(current_union, current, tests, fits, added, settings, jax.random.fold_in(key, 100 * rnd + 99))
+        if better is not None:  # the tests so far were against a null stuck in a worse optimum: redo them
+            null_refit = {"from_effect": better[1], "loglik_before": current.loglik, "loglik_after": better[0].loglik,
+                          "rmse_before": current.rmse, "rmse_after": better[0].rmse}
+            say(f"the base fit improved from {better[1]}'s estimate (log L {current.loglik:.1f} -> "
+                f"{better[0].loglik:.1f}); re-testing")
+            current = fits[final_index] = better[0]
+            for x in tests:
+                effect, alt = available_effects()[x["effect"]], fits[x["fit_index"]]
+                if effect.params and alt.loglik < current.loglik:
+                    alt = fits[x["fit_index"]] = nested_floor(current, alt, effect)
+                n_coords = len(current_union.coords[effect.name]) if effect.params else 0
+                redone = compare(current, alt, effect, n_coords)
+                redone["fit_index"] = x["fit_index"]
+                redone["supported"] = bool(redone["p_value"] < threshold and redone["rmse_drop"] >= settings.min_rmse_drop)
+                x.clear()
+                x.update(redone)
+            calm = calm_rmse(current, observations, masks)
+            if calm[0] <= settings.adequate_ratio * floor:
+                rounds.append({"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
+                               "refits": tests, "winner": None, "indistinguishable": None, "adequate": True,
+                               "calm_rmse": calm[0], "calm_fraction": calm[1], "null_refit": null_refit})
+                break
         supported = sorted([x for x in tests if x["supported"]], key=lambda x: -x["delta_loglik"])
         rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
-                    "refits": tests, "winner": None, "indistinguishable": None, "adequate": False}
+                    "refits": tests, "winner": None, "indistinguishable": None, "adequate": False,
+                    "null_refit": null_refit}
         if not supported:
             rounds.append(rnd_info)
             break
@@ -728,9 +810,12 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
 
 def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio) -> dict:
     base, final = fits[0], fits[final_index]
-    if not added and rounds and rounds[0].get("adequate"):
-        message = (f"No missing effect: the model already fits to within {adequate_ratio:g}x of the noise floor "
-                   f"(RMSE {base.rmse:.4f} m/s, floor {floor:.4f} m/s); there is nothing left for an effect to explain.")
+    if not added and rounds and rounds[-1].get("adequate"):
+        r = rounds[-1]
+        message = (f"No missing effect: away from contact events the model already fits to within {adequate_ratio:g}x "
+                   f"of the noise floor (RMSE {r['calm_rmse']:.4f} m/s on {100 * r['calm_fraction']:.0f}% of the "
+                   f"samples, {base.rmse:.4f} m/s on all; floor {floor:.4f} m/s); there is nothing left for an effect "
+                   "to explain.")
     elif not added:
         best = None
         if rounds and rounds[0]["refits"]:

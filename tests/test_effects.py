@@ -172,3 +172,31 @@ def test_scaled_lr_is_calibrated_when_the_noise_scale_is_wrong():
     beta = np.sum(x * r0) / np.sum(x * x)
     lr, phi = scaled_lr(r0, r0 - beta * x, groups, 1)
     assert lr > 20 and phi == pytest.approx([9.0, 9.0], rel=0.35)
+
+
+def test_adequacy_check_leaves_out_contact_events_but_not_what_follows_them():
+    """diagnose's adequacy check (diagnosis.calm_rmse): a collision that the simulator resolves one
+    frame late leaves a residual as large as the velocity jump at that frame only; away from it
+    the fit is within noise. A wrong post-impact speed (a missing restitution) persists and must
+    still count."""
+    from types import SimpleNamespace
+
+    from galileo_jax.diagnosis import GATE_JUMP, calm_masks, calm_rmse
+
+    rng = np.random.default_rng(3)
+    n = 60
+    v_obs = np.where(np.arange(n) < 30, 1.0, 0.91)  # a gentle second collision: 0.09 m/s jump at sample 30
+    v_sim = np.where(np.arange(n) < 31, 1.0, 0.91)  # ... simulated one frame late
+    noise = 0.004 * rng.standard_normal((4, n))
+    observed = np.stack([v_obs, np.zeros(n), np.zeros(n), np.zeros(n)]) + noise
+    obs = SimpleNamespace(profile=observed, mask=np.ones(n, bool), velocity_sd=np.full(4, 0.002))
+    fit = SimpleNamespace(videos=[SimpleNamespace(simulated=np.stack([v_sim] + [np.zeros(n)] * 3))], rmse=None)
+    assert 0.09 > GATE_JUMP
+    masks = calm_masks(fit, [obs])
+    assert not masks[0][:2, 29:32].any() and masks[0][2:].all()  # object 1's traces near the event only
+    rmse, frac = calm_rmse(fit, [obs], masks)
+    full = float(np.sqrt(np.mean((observed - fit.videos[0].simulated) ** 2)))
+    assert full > 1.5 * 0.004 and abs(rmse - 0.004) < 0.001 and 0.95 < frac < 1.0
+    too_fast = fit.videos[0].simulated + np.where(np.arange(n) > 30, 0.02, 0.0)  # after the impact, every sample
+    late = SimpleNamespace(videos=[SimpleNamespace(simulated=too_fast)], rmse=None)
+    assert calm_rmse(late, [obs], calm_masks(late, [obs]))[0] > 0.008
