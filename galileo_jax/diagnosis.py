@@ -13,7 +13,9 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    explain: the answer is "no missing effect" and no refit runs. Contact events are left out
    because there the simulator itself is inexact (next paragraph and
    :func:`~galileo_jax.likelihood.event_sd`); an effect that acts at an impact (restitution)
-   still shows in every later sample. (Measured on rendered videos without a hidden effect: the base RMSE was
+   still shows in every later sample. Over all samples the RMSE must still be within
+   ``adequate_ratio_all`` (2) of the floor: an effect that shows mostly around an event (a
+   ramp friction, at the ramp's foot) is not waved through. (Measured on rendered videos without a hidden effect: the base RMSE was
    0.4-1.3x the floor, except where the fitting simulator (MJX) and the renderer (C MuJoCo)
    disagree, e.g. around a second collision: 2.3x.)
 4. **Screen**: for every candidate effect with a parameter, the score statistic of
@@ -116,9 +118,14 @@ class DiagnoseSettings:
             rendered videos without a hidden effect: an effect absorbing the simulator's own
             error (MJX fit vs the C MuJoCo renderer, e.g. around a second collision) lowered
             the RMSE by 6%.
-        adequate_ratio: a model whose RMSE is within this factor of the noise floor is
-            adequate: nothing is left for an effect to explain, and no refit is run (issue 3's
-            own standard of a good final model, 1.3).
+        adequate_ratio: a model whose RMSE away from contact events is within this factor of
+            the noise floor is adequate: nothing is left for an effect to explain, and no refit
+            is run (issue 3's own standard of a good final model, 1.3) ...
+        adequate_ratio_all: ... provided its RMSE over all samples is within this factor (2.0).
+            Contact events may add error, but not more than the noise again: a hidden ramp
+            friction shows mostly around the ramp's foot (RMSE 0.0061 m/s away from events,
+            1.3x the floor, but 0.0144 m/s, 3.1x, on all samples). Measured base fits: videos
+            without a hidden effect 0.4-1.4x the floor on all samples, videos with one 3.0-9.9x.
         max_effects: effects added one after another at most.
         likelihood, sd_model: likelihood kind and model-error floor (m/s), as in ``fit``.
         base_starts, base_screen: multi-start settings of the base fit.
@@ -151,6 +158,7 @@ class DiagnoseSettings:
     alpha: float = 0.05
     min_rmse_drop: float = 0.10
     adequate_ratio: float = 1.3
+    adequate_ratio_all: float = 2.0
     max_effects: int = 1
     likelihood: str = DEFAULT_KIND
     sd_model: float = DEFAULT_SD_MODEL
@@ -387,6 +395,12 @@ def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
     d = np.concatenate([(np.asarray(o.profile) - v.simulated)[m] for v, o, m in zip(fit.videos, observations, masks)])
     n = sum(int(np.sum(o.mask)) * np.asarray(o.profile).shape[0] for o in observations)
     return (float(np.sqrt(np.mean(d**2))) if d.size else fit.rmse), d.size / max(n, 1)
+
+
+def adequate(fit: ModelFit, rmse_calm: float, floor: float, settings: DiagnoseSettings) -> bool:
+    """Step 3 of the module docstring: RMSE away from contact events <= ``adequate_ratio`` x the
+    noise floor and RMSE on all samples <= ``adequate_ratio_all`` x the floor."""
+    return rmse_calm <= settings.adequate_ratio * floor and fit.rmse <= settings.adequate_ratio_all * floor
 
 
 def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, init: np.ndarray | None = None,
@@ -727,7 +741,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
         calm = calm_rmse(current, observations, masks)
-        if calm[0] <= settings.adequate_ratio * floor:  # adequate: nothing left to explain
+        if adequate(current, calm[0], floor, settings):  # nothing left to explain
             rounds.append({"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
                            "refits": [], "winner": None, "indistinguishable": None, "adequate": True,
                            "calm_rmse": calm[0], "calm_fraction": calm[1]})
@@ -775,7 +789,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
                 x.clear()
                 x.update(redone)
             calm = calm_rmse(current, observations, masks)
-            if calm[0] <= settings.adequate_ratio * floor:
+            if adequate(current, calm[0], floor, settings):
                 rounds.append({"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
                                "refits": tests, "winner": None, "indistinguishable": None, "adequate": True,
                                "calm_rmse": calm[0], "calm_fraction": calm[1], "null_refit": null_refit})
@@ -814,8 +828,8 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
         r = rounds[-1]
         message = (f"No missing effect: away from contact events the model already fits to within {adequate_ratio:g}x "
                    f"of the noise floor (RMSE {r['calm_rmse']:.4f} m/s on {100 * r['calm_fraction']:.0f}% of the "
-                   f"samples, {base.rmse:.4f} m/s on all; floor {floor:.4f} m/s); there is nothing left for an effect "
-                   "to explain.")
+                   f"samples; {base.rmse:.4f} m/s on all, {base.rmse / floor:.1f}x; floor {floor:.4f} m/s); there is "
+                   "nothing left for an effect to explain.")
     elif not added:
         best = None
         if rounds and rounds[0]["refits"]:
