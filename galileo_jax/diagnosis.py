@@ -15,9 +15,9 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    :func:`~galileo_jax.likelihood.event_sd`); an effect that acts at an impact (restitution)
    still shows in every later sample. Over all samples the RMSE must still be within
    ``adequate_ratio_all`` (2) of the floor: an effect that shows mostly around an event (a
-   ramp friction, at the ramp's foot) is not waved through. (Measured on rendered videos without a hidden effect: the base RMSE was
-   0.4-1.3x the floor, except where the fitting simulator (MJX) and the renderer (C MuJoCo)
-   disagree, e.g. around a second collision: 2.3x.)
+   ramp friction, at the ramp's foot) is not waved through. (Measured on rendered videos
+   without a hidden effect: the base RMSE was 0.4-1.3x the floor, except where the fitting
+   simulator (MJX) and the renderer (C MuJoCo) disagree, e.g. around a second collision: 2.3x.)
 4. **Screen**: for every candidate effect with a parameter, the score statistic of
    :func:`~galileo_jax.inference.screen.score_test` (the residual projected on the effect's
    sensitivity after projecting out the current parameters) and a coarse profile over the
@@ -590,6 +590,22 @@ def _refit_init(union: Union, current: ModelFit, effect: Effect, screen_rows: li
     return moved if ll[1] > ll[0] else theta
 
 
+def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_index: int, threshold: float,
+                settings: DiagnoseSettings) -> dict:
+    """Test the refit ``fits[fit_index]`` (current + ``effect``) against ``current``
+    (:func:`compare`): a refit that ended below ``current`` is first replaced in ``fits`` by
+    :func:`nested_floor`. The result carries ``fit_index`` and ``supported`` (p below
+    ``threshold`` and an RMSE drop of at least ``settings.min_rmse_drop``)."""
+    alt = fits[fit_index]
+    if effect.params and alt.loglik < current.loglik:
+        alt = fits[fit_index] = nested_floor(current, alt, effect)
+    n_coords = len(current.union.coords[effect.name]) if effect.params else 0
+    test = compare(current, alt, effect, n_coords)
+    test["fit_index"] = fit_index
+    test["supported"] = bool(test["p_value"] < threshold and test["rmse_drop"] >= settings.min_rmse_drop)
+    return test
+
+
 def refit_null(union: Union, current: ModelFit, tests: list[dict], fits: list[ModelFit], added, settings,
                key) -> tuple[ModelFit, str] | None:
     """Refit the current model from the best alternative's estimate, its effect held neutral.
@@ -741,10 +757,10 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
         calm = calm_rmse(current, observations, masks)
+        rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
+                    "refits": [], "winner": None, "indistinguishable": None, "adequate": False, "null_refit": None}
         if adequate(current, calm[0], floor, settings):  # nothing left to explain
-            rounds.append({"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
-                           "refits": [], "winner": None, "indistinguishable": None, "adequate": True,
-                           "calm_rmse": calm[0], "calm_fraction": calm[1]})
+            rounds.append({**rnd_info, "adequate": True, "calm_rmse": calm[0], "calm_fraction": calm[1]})
             break
         tests = []
         for i, name in enumerate(chosen):
@@ -754,50 +770,32 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
             if effect.params:
                 alt_union = current_union
                 init = _refit_init(alt_union, current, effect, screen)
-                n_coords = len(alt_union.coords[name])
             else:  # structural: its own union (the model's structure changes), same free effects
                 alt_union = Union(scenes, observations, (effect,) + tuple(parametric), settings,
                                   sd_events=union.sd_events)
-                init, n_coords = None, 0
-            alt = fit_model(alt_union, tuple(added) + (name,), settings, k, init=init,
-                            starts=settings.refit_starts if init is not None else settings.base_starts,
-                            screen=settings.refit_screen)
-            if effect.params and alt.loglik < current.loglik:
-                alt = nested_floor(current, alt, effect)
-            fits.append(alt)
-            test = compare(current, alt, effect, n_coords)
-            test["fit_index"] = len(fits) - 1
-            test["supported"] = bool(test["p_value"] < threshold and test["rmse_drop"] >= settings.min_rmse_drop)
-            tests.append(test)
+                init = None
+            fits.append(fit_model(alt_union, tuple(added) + (name,), settings, k, init=init,
+                                  starts=settings.refit_starts if init is not None else settings.base_starts,
+                                  screen=settings.refit_screen))
+            tests.append(test_effect(current, effect, fits, len(fits) - 1, threshold, settings))
         timings[f"round{rnd + 1}_refits_s"] = time.perf_counter() - t
-        null_refit = None
         better = refit_null(current_union, current, tests, fits, added, settings, jax.random.fold_in(key, 100 * rnd + 99))
         if better is not None:  # the tests so far were against a null stuck in a worse optimum: redo them
-            null_refit = {"from_effect": better[1], "loglik_before": current.loglik, "loglik_after": better[0].loglik,
-                          "rmse_before": current.rmse, "rmse_after": better[0].rmse}
+            rnd_info["null_refit"] = {"from_effect": better[1], "loglik_before": current.loglik,
+                                      "loglik_after": better[0].loglik, "rmse_before": current.rmse,
+                                      "rmse_after": better[0].rmse}
             say(f"the base fit improved from {better[1]}'s estimate (log L {current.loglik:.1f} -> "
                 f"{better[0].loglik:.1f}); re-testing")
             current = fits[final_index] = better[0]
-            for x in tests:
-                effect, alt = available_effects()[x["effect"]], fits[x["fit_index"]]
-                if effect.params and alt.loglik < current.loglik:
-                    alt = fits[x["fit_index"]] = nested_floor(current, alt, effect)
-                n_coords = len(current_union.coords[effect.name]) if effect.params else 0
-                redone = compare(current, alt, effect, n_coords)
-                redone["fit_index"] = x["fit_index"]
-                redone["supported"] = bool(redone["p_value"] < threshold and redone["rmse_drop"] >= settings.min_rmse_drop)
-                x.clear()
-                x.update(redone)
+            tests = [test_effect(current, available_effects()[x["effect"]], fits, x["fit_index"], threshold, settings)
+                     for x in tests]
             calm = calm_rmse(current, observations, masks)
             if adequate(current, calm[0], floor, settings):
-                rounds.append({"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
-                               "refits": tests, "winner": None, "indistinguishable": None, "adequate": True,
-                               "calm_rmse": calm[0], "calm_fraction": calm[1], "null_refit": null_refit})
+                rounds.append({**rnd_info, "refits": tests, "adequate": True, "calm_rmse": calm[0],
+                               "calm_fraction": calm[1]})
                 break
         supported = sorted([x for x in tests if x["supported"]], key=lambda x: -x["delta_loglik"])
-        rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
-                    "refits": tests, "winner": None, "indistinguishable": None, "adequate": False,
-                    "null_refit": null_refit}
+        rnd_info["refits"] = tests
         if not supported:
             rounds.append(rnd_info)
             break
