@@ -83,6 +83,28 @@ def test_linear_drag_and_initial_push_match_closed_forms():
     assert (0.5 * a0 * t[-1] ** 2 + v0 * t[-1]) / s_exact[-1] > 1.1
 
 
+def test_velocity_friction_matches_closed_form_around_its_reference_speed():
+    # k(v) = k + s (|v| - v_ref) on the ramp: v' = a0 - b v with a0 = g (sin - (k - s v_ref) cos),
+    # b = g s cos, the same ODE as linear drag (v(0) = 0: s(t) = (a0/b) t - (a0/b)(1 - exp(-b t)) / b)
+    from galileo_jax.effects.library import VELOCITY_FRICTION_REF
+
+    scene = _scene(two=False, start=1.9)
+    th, k, slope = math.radians(20.0), 0.25, 0.3
+    sim = make_simulator(scene, 60.0, (get_effect("velocity_friction"),))
+    n = steps_needed(sim, 0.8)
+    pose = np.asarray(jax.jit(lambda q: rollout(sim, q, n).pose)(
+        PhysParams(jnp.array([0.5]), jnp.array([k]), jnp.array([slope]))))
+    t = np.arange(pose.shape[0]) * sim.dt
+    s = (pose[:, 0, 0] - pose[0, 0, 0]) / math.cos(th)
+    a0 = G * (math.sin(th) - (k - slope * VELOCITY_FRICTION_REF) * math.cos(th))
+    b = G * slope * math.cos(th)
+    s_exact = (a0 / b) * t - (a0 / b) * (1 - np.exp(-b * t)) / b
+    late = t > 0.2
+    assert np.max(np.abs(s[late] - s_exact[late]) / s_exact[late]) < 0.03
+    # constant friction k (the base model at the same k) would be 10% off at 0.8 s: the test can fail
+    assert abs(0.5 * G * (math.sin(th) - k * math.cos(th)) * t[-1] ** 2 / s_exact[-1] - 1) > 0.1
+
+
 def test_score_statistic_is_the_linear_least_squares_gain():
     rng = np.random.default_rng(0)
     n = 200

@@ -13,7 +13,7 @@ restitution        bouncy object-object impacts, rebound ratio ~ e      restitut
 ramp_friction      friction on the ramp k + dk, on the floor k          dk_ramp             0
 initial_push       object 1 released at speed v0 down the slope         v0 m/s              0
 rolling            round objects roll: true radius, I = alpha m r^2     (none: structural)  -
-velocity_friction  k(v) = k + s |v| (velocity-strengthening friction)   dk_dv s/m           0
+velocity_friction  k(v) = k + s (|v| - 0.5 m/s) (rate-dependent)         dk_dv s/m           0
 =================  ===================================================  ==================  =======
 """
 
@@ -122,15 +122,24 @@ RAMP_FRICTION = Effect(
 )
 
 
+#: Reference sliding speed of ``velocity_friction`` (m/s): k(v) = k + s (|v| - v_ref), so the
+#: base coefficient k is the friction at a typical sliding speed, not at rest. Centring makes k
+#: and s nearly uncorrelated, and the base fit's k a good start for the refit. Measured on a
+#: rendered video (s = 0.30, k at rest 0.04, base fit k 0.23): with k(v) = k + s |v| the refit
+#: had to move k from 0.23 to 0.04 and stopped at k 0.165, s 0.10 (RMSE 0.018 m/s; quadratic
+#: drag was named instead); centred, it reached s 0.18, RMSE 0.010 m/s and was named.
+VELOCITY_FRICTION_REF = 0.5
+
+
 def _velocity_friction(k, state, values, ctx):
     v = jnp.asarray(state.vel)
     speed = jnp.sqrt(jnp.sum(v**2, axis=-1) + 1e-12)
-    return jnp.maximum(jnp.asarray(k) + values[0] * speed[:, None], 0.0)
+    return jnp.maximum(jnp.asarray(k) + values[0] * (speed[:, None] - VELOCITY_FRICTION_REF), 0.0)
 
 
 VELOCITY_FRICTION = Effect(
     name="velocity_friction",
-    summary="friction that changes with sliding speed: k(v) = k + s |v|",
+    summary="friction that changes with sliding speed: k(v) = k + s (|v| - 0.5 m/s); k is the friction at 0.5 m/s",
     params=(EffectParam("dk_dv", "s/m", 0.0, -0.5, 0.5, 0.03, (0.2, 0.4),
                         "change of the friction coefficient per m/s of sliding speed"),),
     evidence="deceleration at different speeds scaled by the normal force (compare ramp and floor, or two ramp angles)",
