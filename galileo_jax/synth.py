@@ -111,6 +111,12 @@ MAX_SECONDS = 4.0
 REST_SPEED = 2e-3
 #: Margin (dimensionless) below tan(theta) for k1 in random draws, so object 1 slides.
 SLIDE_MARGIN = 0.05
+#: Smallest friction coefficient at rest that the effects may lower a random draw's friction to
+#: (e.g. k - s v_ref of the centred ``velocity_friction``; a base coefficient already below it
+#: is kept). Near zero, objects that should have stopped
+#: drift on MuJoCo's soft contacts, and the C renderer and MJX part ways (measured: a draw with
+#: k - s v_ref < 0 left object 1 sliding backwards at 0.14 m/s in MJX and at rest in C MuJoCo).
+MIN_REST_FRICTION = 0.05
 #: Range of random friction draws (intersected with the scene's prior).
 RANDOM_FRICTION = (0.02, 0.6)
 #: Range of random mass draws in kg (intersected with the scene's prior).
@@ -323,18 +329,23 @@ def ramp_friction_at_rest(scene: Scene, effects, values: Mapping[str, float], fr
         values: their parameter values by name.
         friction: (n_objects,) base friction coefficients.
     """
+    return float(frictions_at_rest(scene, effects, values, friction)[0, 0])
+
+
+def frictions_at_rest(scene: Scene, effects, values: Mapping[str, float], friction) -> np.ndarray:
+    """(n_objects, 2) friction coefficients at rest (on the ramp, on the floor) after the
+    effects' ``friction`` hooks (arguments as :func:`ramp_friction_at_rest`)."""
     effects = tuple(effects)
     friction = np.asarray(friction, dtype=float).reshape(-1)
     if not any(e.friction is not None for e in effects):
-        return float(friction[0])
+        return np.repeat(friction[:, None], 2, axis=1)
     n = scene.n_objects
     index = build_model(scene, effects=effects)[1]
     ctx = make_context(scene, index, 1.0 / 240.0)
     pos = np.stack([object_start_pose(scene, i)[0] for i in range(n)])
     state = BodyState(pos, np.zeros((n, 3)), np.ones(n))
     vals = split_values(effects, np.asarray([values[p] for p in effect_param_names(effects)], dtype=float))
-    k = frictions(effects, vals, friction, state, ctx)
-    return float(np.asarray(k)[0, 0])
+    return np.asarray(frictions(effects, vals, friction, state, ctx), dtype=float)
 
 
 def degenerate_motion(scene: Scene, motion: Motion) -> str | None:
@@ -370,7 +381,8 @@ def draw_informative_params(scene: Scene, rng: np.random.Generator, effects, *, 
     uniformly on their ``synth_range``; then the scene's free masses and frictions as
     :func:`draw_random_params` draws them, with object 1's friction on the ramp *after the
     effects* (e.g. ``k1 + dk_ramp`` for ``ramp_friction``, see :func:`ramp_friction_at_rest`)
-    below tan(theta) - :data:`SLIDE_MARGIN`; then the motion is simulated in C MuJoCo for the
+    below tan(theta) - :data:`SLIDE_MARGIN`, and no friction at rest lowered by the effects
+    below :data:`MIN_REST_FRICTION` (:func:`frictions_at_rest`); then the motion is simulated in C MuJoCo for the
     video's length and must pass :func:`degenerate_motion` (object 1 reaches object 2, or the
     floor). A draw that breaks a rule is thrown away and everything is drawn again, at most
     ``attempts`` times.
@@ -414,6 +426,12 @@ def draw_informative_params(scene: Scene, rng: np.random.Generator, effects, *, 
                 reason = (f"object 1's friction on the ramp {k_ramp:.3g} is not below "
                           f"tan(theta) - {SLIDE_MARGIN} = {limit:.3g}")
                 continue
+        k_rest = frictions_at_rest(scene, effs, values, phys.friction)
+        floor = np.minimum(MIN_REST_FRICTION, np.asarray(phys.friction, dtype=float))[:, None]
+        if np.any(k_rest < floor - 1e-12):
+            reason = (f"the effects lower a friction coefficient at rest to {k_rest.min():.3g}, below "
+                      f"{MIN_REST_FRICTION}: a resting object would drift")
+            continue
         motion = simulate_motion(scene, phys, fps, rest_frames, n_frames, effects=effs)
         reason = degenerate_motion(scene, motion)
         if reason is None:

@@ -378,6 +378,21 @@ def test_random_effect_draws_are_informative(scene):
                                       fixed={"k1": 0.15}, fixed_effects={"dk_ramp": 0.1}, attempts=3)
 
 
+def test_random_velocity_friction_draws_keep_friction_at_rest(scene):
+    """The centred velocity friction k + s (|v| - v_ref) is lower at rest: draws whose friction at
+    rest falls below MIN_REST_FRICTION (resting objects would drift) are thrown away."""
+    from galileo_jax.effects.library import VELOCITY_FRICTION_REF
+
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        p = synth.draw_informative_params(scene, rng, ["velocity_friction"], fps=FPS, rest_frames=3, n_frames=60)
+        rest = [p[f"k{i}"] - p["dk_dv"] * VELOCITY_FRICTION_REF for i in (1, 2)]
+        assert min(rest) >= synth.MIN_REST_FRICTION, p
+        k_rest = synth.frictions_at_rest(scene, scene_effects(scene, ["velocity_friction"]), p,
+                                         [p["k1"], p["k2"]])
+        np.testing.assert_allclose(k_rest, np.repeat(np.array(rest)[:, None], 2, axis=1), atol=1e-6)
+
+
 def test_cli_random_with_effect(tmp_path, capsys):
     out = tmp_path / "out"
     code = synth.main(["--scene", str(SCENE), "--random", "2", "--effect", "quadratic_drag", "--out", str(out),
