@@ -403,6 +403,16 @@ def adequate(fit: ModelFit, rmse_calm: float, floor: float, settings: DiagnoseSe
     return rmse_calm <= settings.adequate_ratio * floor and fit.rmse <= settings.adequate_ratio_all * floor
 
 
+def _adequate_round(rnd_info: dict, current: ModelFit, observations, masks, floor: float,
+                    settings: DiagnoseSettings) -> dict | None:
+    """The round record ``rnd_info`` marked adequate, with the event-free RMSE and the fraction
+    of samples it covers, when ``current`` passes :func:`adequate`; else None."""
+    rmse_calm, fraction = calm_rmse(current, observations, masks)
+    if not adequate(current, rmse_calm, floor, settings):
+        return None
+    return {**rnd_info, "adequate": True, "calm_rmse": rmse_calm, "calm_fraction": fraction}
+
+
 def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, init: np.ndarray | None = None,
               starts: int | None = None, screen: int | None = None) -> ModelFit:
     """Fit base + ``free_effects`` inside ``union`` and evaluate it (residuals, profiles, criticism)."""
@@ -756,11 +766,11 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         order = list(dict.fromkeys(row["effect"] for row in screen))
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
-        calm = calm_rmse(current, observations, masks)
         rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
                     "refits": [], "winner": None, "indistinguishable": None, "adequate": False, "null_refit": None}
-        if adequate(current, calm[0], floor, settings):  # nothing left to explain
-            rounds.append({**rnd_info, "adequate": True, "calm_rmse": calm[0], "calm_fraction": calm[1]})
+        done = _adequate_round(rnd_info, current, observations, masks, floor, settings)
+        if done is not None:  # nothing left to explain
+            rounds.append(done)
             break
         tests = []
         for i, name in enumerate(chosen):
@@ -789,10 +799,9 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
             current = fits[final_index] = better[0]
             tests = [test_effect(current, available_effects()[x["effect"]], fits, x["fit_index"], threshold, settings)
                      for x in tests]
-            calm = calm_rmse(current, observations, masks)
-            if adequate(current, calm[0], floor, settings):
-                rounds.append({**rnd_info, "refits": tests, "adequate": True, "calm_rmse": calm[0],
-                               "calm_fraction": calm[1]})
+            done = _adequate_round({**rnd_info, "refits": tests}, current, observations, masks, floor, settings)
+            if done is not None:
+                rounds.append(done)
                 break
         supported = sorted([x for x in tests if x["supported"]], key=lambda x: -x["delta_loglik"])
         rnd_info["refits"] = tests

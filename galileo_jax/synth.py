@@ -420,13 +420,13 @@ def draw_informative_params(scene: Scene, rng: np.random.Generator, effects, *, 
             continue
         params = {**base, **values}
         phys = resolve_params(scene, params, effs)
+        k_rest = frictions_at_rest(scene, effs, values, phys.friction)  # (n_objects, ramp / floor)
         if on_ramp:
-            k_ramp = ramp_friction_at_rest(scene, effs, values, phys.friction)
+            k_ramp = float(k_rest[0, 0])
             if k_ramp >= limit:
                 reason = (f"object 1's friction on the ramp {k_ramp:.3g} is not below "
                           f"tan(theta) - {SLIDE_MARGIN} = {limit:.3g}")
                 continue
-        k_rest = frictions_at_rest(scene, effs, values, phys.friction)
         floor = np.minimum(MIN_REST_FRICTION, np.asarray(phys.friction, dtype=float))[:, None]
         if np.any(k_rest < floor - 1e-12):
             reason = (f"the effects lower a friction coefficient at rest to {k_rest.min():.3g}, below "
