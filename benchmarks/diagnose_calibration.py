@@ -15,7 +15,10 @@ videos with the RMSE falling >= 2x to <= 1.3x the noise floor; with no effect, "
 effect" on >= 19 of 20.
 
 Resumable: each video's record is written to ``<out>/<effect>_<i>.json`` and skipped when
-present. The summary goes to ``benchmarks/results/diagnose_calibration.{md,json}``.
+present. The summary goes to ``benchmarks/results/diagnose_calibration.{md,json}``. The
+diagnoses can be spread over processes or machines: ``--stage render`` renders the videos
+(and their ``.truth.json``) into ``--out``; ``--stage analyse --indices 1`` diagnoses the
+rendered ones there, one process per video if wanted.
 
     python benchmarks/diagnose_calibration.py --effects none,quadratic_drag --videos 5
 """
@@ -49,23 +52,44 @@ def scene_for(effect: str, default: Path) -> Path:
     return SCENES.get(effect, default)
 
 
-def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> dict:
-    from galileo_jax.diagnosis import DiagnoseSettings, diagnose
+def render_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> Path:
+    """Render video ``<work>/<effect>_<i>.mp4`` (with its ``.yaml`` scene and ``.truth.json``)
+    from parameters drawn for this (effect, index, seed); kept if already there. Returns its path."""
     from galileo_jax.effects import get_effect
-    from galileo_jax.observe import observe, read_video
     from galileo_jax.scene import load_scene
     from galileo_jax.synth import draw_informative_params, render_video
 
+    video = work / f"{effect}_{i}.mp4"
+    if video.exists() and video.with_suffix(".truth.json").exists() and video.with_suffix(".yaml").exists():
+        return video
     scene = load_scene(scene_path)
     rng = np.random.default_rng(seed * 1000 + i + 17 * len(effect))
     effects = () if effect == "none" else (get_effect(effect).name,)
     params = draw_informative_params(scene, rng, effects, fps=FPS, rest_frames=round(0.3 * FPS),
                                      n_frames=int(round(DURATION * FPS)))
-    video = work / f"{effect}_{i}.mp4"
     t0 = time.perf_counter()
-    truth = render_video(scene, params, video, fps=FPS, duration=DURATION, width=480, height=270, noise_sd=2.0,
-                         seed=seed + i, progress=False, effects=effects)
-    t_render = time.perf_counter() - t0
+    render_video(scene, params, video, fps=FPS, duration=DURATION, width=480, height=270, noise_sd=2.0,
+                 seed=seed + i, progress=False, effects=effects)
+    truth_path = video.with_suffix(".truth.json")
+    truth = json.loads(truth_path.read_text())
+    truth["render_s"] = time.perf_counter() - t0
+    write_atomic(truth_path, json.dumps(truth, indent=1))
+    return video
+
+
+def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> dict:
+    """Render (unless already rendered) and diagnose one video; the record written per video."""
+    from galileo_jax.diagnosis import DiagnoseSettings, diagnose
+    from galileo_jax.observe import observe, read_video
+    from galileo_jax.scene import load_scene
+
+    video = render_one(scene_path, effect, i, work, seed)
+    truth = json.loads(video.with_suffix(".truth.json").read_text())
+    effects = tuple(truth["hidden_effects"])
+    params = {k: truth[k] for k in ("m1", "k1", "m2", "k2") if k in truth}
+    for name in effects:
+        params.update(truth["effects"][name])
+    t_render = truth.get("render_s", float("nan"))
     rendered_scene = load_scene(video.with_suffix(".yaml"))
     clip = read_video(video, fps_override=rendered_scene.video.fps)
     obs = observe(clip, rendered_scene, progress=False)
@@ -102,8 +126,11 @@ def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> f
     values = dict(params)
     if "phi" in problem.names:
         values["phi"] = (params["m1"] - params["m2"]) / (params["m1"] + params["m2"])
-    values["dt_release"] = release_time - obs.release_time
+    values["dt_release"] = 0.0
     theta = np.array([values[n] for n in problem.names])
+    if "dt_release" in problem.names:  # the fit's release time, less any effect's release delay
+        delay = float(problem.engine.release_time(theta, problem.data)) - obs.release_time
+        theta[problem.names.index("dt_release")] = release_time - obs.release_time - delay
     return profile_rmse(obs, np.asarray(problem.simulate(theta)))
 
 
@@ -135,6 +162,10 @@ def main(argv=None) -> int:
     ap.add_argument("--null-videos", type=int, default=20, help="videos without a hidden effect")
     ap.add_argument("--out", default=str(RESULTS / "diagnose_calibration"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--stage", choices=("all", "render", "analyse"), default="all",
+                    help="render: only render the videos (kept in --out); analyse: only diagnose videos already "
+                         "rendered there (to spread the diagnoses over machines); all: both")
+    ap.add_argument("--indices", default=None, help="only these video indices (comma-separated), e.g. 1,2")
     args = ap.parse_args(argv)
     from galileo_jax.jaxcache import enable_compilation_cache
 
@@ -142,21 +173,37 @@ def main(argv=None) -> int:
     work = Path(args.out)
     work.mkdir(parents=True, exist_ok=True)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    only = {int(x) for x in args.indices.split(",")} if args.indices else None
     for i in range(max(args.videos, args.null_videos)):
         for effect in effects:
-            if i >= (args.null_videos if effect == "none" else args.videos):
+            if i >= (args.null_videos if effect == "none" else args.videos) or (only is not None and i not in only):
                 continue
             path = work / f"{effect}_{i}.json"
             if path.exists():
                 continue
-            rec = run_one(scene_for(effect, Path(args.scene)), effect, i, work, args.seed)
-            path.write_text(json.dumps(rec, indent=1, default=float))
+            scene_path = scene_for(effect, Path(args.scene))
+            if args.stage == "render":
+                print(f"rendered {render_one(scene_path, effect, i, work, args.seed)}", flush=True)
+                continue
+            if args.stage == "analyse" and not (work / f"{effect}_{i}.mp4").exists():
+                print(f"{effect} #{i}: not rendered, skipped", flush=True)
+                continue
+            rec = run_one(scene_path, effect, i, work, args.seed)
+            write_atomic(path, json.dumps(rec, indent=1, default=float))
             print(f"{effect} #{i}: {rec['decision']} ({rec['diagnose_s']:.0f} s)", flush=True)
-            for ext in (".mp4",):
-                (work / f"{effect}_{i}{ext}").unlink(missing_ok=True)
+            (work / f"{effect}_{i}.mp4").unlink(missing_ok=True)
             write_tables(work)  # after every video: a stopped run still leaves its tables
-    write_tables(work)
+    if args.stage != "render":
+        write_tables(work)
     return 0
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (concurrent runs share the tables)."""
+    from galileo_jax.report.results import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
 
 
 def _named_fit(record: dict) -> str:
@@ -176,7 +223,7 @@ def write_tables(work: Path) -> None:
     records = [json.loads(p.read_text()) for p in sorted(work.glob("*.json")) if not p.name.endswith(".truth.json")]
     summary = summarize(records)
     machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}"
-    (RESULTS / "diagnose_calibration.json").write_text(json.dumps({"machine": machine, "summary": summary,
+    write_atomic(RESULTS / "diagnose_calibration.json", json.dumps({"machine": machine, "summary": summary,
                                                                    "records": records}, indent=1, default=float))
     lines = ["# diagnose calibration (rendered videos; scene ramp_20, rolling: roll_30)", "", f"machine: {machine}", "",
              "Command: `python benchmarks/diagnose_calibration.py` (resumable). 'named correctly': the hidden effect "
@@ -192,15 +239,18 @@ def write_tables(work: Path) -> None:
                      f"{row.get('correct_and_rmse_targets', '-')} | {row.get('correct_and_rmse_targets_attainable', '-')} | "
                      f"{row.get('median_drop_factor', nan):.2f} | {row.get('median_final_over_floor', nan):.2f} | "
                      f"{row.get('median_final_over_attainable', nan):.2f} | {row['median_diagnose_s']:.0f} |")
-    lines += ["", "Per video (RMSE in m/s: base fit -> final model, noise floor, attainable):", "",
+    lines += ["", "Per video (RMSE in m/s: base fit -> final model, noise floor, attainable). (b): diagnosed on "
+              "another machine (its record's `ran_on`; e.g. the lent machine's CPU cores, one video per core), "
+              "same code and video.", "",
               "| video | hidden value | named first | its fit (90%) | tied | RMSE base -> final (floor, attainable) "
               "| time (s) |", "|---|---|---|---|---|---|---|"]
     for r in records:
         hidden = ", ".join(f"{k} {v:.3g}" for k, v in r["truth"].items() if k not in ("m1", "k1", "m2", "k2")) or "-"
         lines.append(f"| {r['effect']}_{r['index']} | {hidden} | {r['named_first'] or 'none'} | {_named_fit(r)} | "
                      f"{', '.join(r['tied']) or '-'} | {r['rmse_base']:.4f} -> {r['rmse_final']:.4f} "
-                     f"({r['noise_floor']:.4f}, {r.get('attainable_rmse', nan):.4f}) | {r['diagnose_s']:.0f} |")
-    (RESULTS / "diagnose_calibration.md").write_text("\n".join(lines) + "\n")
+                     f"({r['noise_floor']:.4f}, {r.get('attainable_rmse', nan):.4f}) | {r['diagnose_s']:.0f}"
+                     f"{' (b)' if r.get('ran_on') else ''} |")
+    write_atomic(RESULTS / "diagnose_calibration.md", "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

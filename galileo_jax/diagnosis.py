@@ -83,6 +83,7 @@ in :mod:`galileo_jax.effects`, :mod:`galileo_jax.inference` and :mod:`galileo_ja
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -469,6 +470,22 @@ def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSett
 SCREEN_GRID = (0.05, 0.15, 0.4)
 
 
+def finite_difference(res: np.ndarray, plus: int, minus: int | None, h: float) -> np.ndarray:
+    """Derivative (n,) of the residual rows ``res`` (P, n) in one coordinate, from row 0 (the
+    current fit) and the rows ``plus`` (coordinate + h) and ``minus`` (- h, or None).
+
+    Central where both are finite, one-sided where only one is (a rollout can blow up at a
+    screen point, e.g. a stiff contact), zero (no information) where neither is."""
+    ok = np.all(np.isfinite(res[[plus] + ([] if minus is None else [minus])]), axis=1)
+    if minus is not None and ok.all():
+        return (res[plus] - res[minus]) / (2 * h)
+    if ok[0]:
+        return (res[plus] - res[0]) / h
+    if minus is not None and ok[1]:
+        return (res[0] - res[minus]) / h
+    return np.zeros_like(res[0])
+
+
 def screen_candidates(union: Union, current: ModelFit, candidates, settings: DiagnoseSettings) -> list[dict]:
     """Rank the candidates with parameters at the current fit, in one batched set of rollouts.
 
@@ -482,7 +499,8 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
       parameter's range (a coarse profile likelihood; large effects are not linear).
 
     Candidates are ranked by the larger of the two (``statistic``); ``best_value`` is the grid
-    value with the largest gain, used to start the refit.
+    value with the largest gain, used to start the refit. Screen points whose rollout is not
+    finite are left out (:func:`finite_difference`; grid values skipped).
 
     Returns one dict per candidate coordinate, sorted by statistic, largest first.
     """
@@ -521,17 +539,16 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
     if not any(x[0] != "current" for x in plan):
         return []
     res = np.asarray(problem.residuals(np.stack(points)), np.float64)
+    finite = np.all(np.isfinite(res), axis=1)  # a rollout can blow up at a screen point (a stiff contact)
     r0 = res[0]
-    jac = np.stack([(res[ip] - res[im]) / (2 * h) for kind, _, h, ip, im, *_ in plan if kind == "current"], axis=1)
+    if not finite[0]:
+        return []
+    jac = np.stack([finite_difference(res, ip, im, h) for kind, _, h, ip, im, *_ in plan if kind == "current"],
+                   axis=1)
     cands = [x for x in plan if x[0] != "current"]
-    sens, one_sided = [], []
-    for _, prm, _, plus, minus, _ in cands:
-        if minus is None:
-            sens.append((res[plus] - r0) / prm.screen_step)
-        else:
-            sens.append((res[plus] - res[minus]) / (2 * prm.screen_step))
-        one_sided.append(prm.one_sided)
-    sens = np.stack(sens, axis=1)
+    sens = np.stack([finite_difference(res, plus, minus, prm.screen_step) for _, prm, _, plus, minus, _ in cands],
+                    axis=1)
+    one_sided = [prm.one_sided for _, prm, *_ in cands]
     score = score_test(r0, jac, sens, np.asarray(one_sided))
     base_ss = float(np.sum(r0**2))
     free_names = [names[j] for j in free_now]
@@ -542,8 +559,10 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
 
     rows = []
     for c, (name, prm, coord, plus, minus, grid) in enumerate(cands):
-        gains = []
+        gains = [(-math.inf, prm.neutral + prm.screen_step, np.zeros(len(free_now)))]  # if no grid point is finite
         for v, ip in grid:
+            if not finite[ip]:
+                continue
             dr = res[ip] - r0
             b = readjust(dr)
             gains.append((base_ss - float(np.sum((r0 + dr - (jac @ b if b.size else 0.0)) ** 2)), v, -b))

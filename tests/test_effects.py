@@ -3,7 +3,9 @@ and a user-defined effect picked up by ``diagnose``.
 
 * Every shipped effect's neutral values give back the base model's profile exactly.
 * Linear drag on the ramp: v(t) = (a0 / b)(1 - exp(-b t)) with a0 = g (sin - k cos) (closed form).
-* Initial push: the speed at release is v0 (first velocity sample, closed form v0 + a0 t).
+* Initial push: the speed at release is v0 (first velocity sample, closed form v0 + a0 t);
+  in a fit the push leaves v0 / a0 after the fitted release time, so away from the first
+  frames the pushed profile is the base model's at the same release time.
 * The score statistic equals the exact least-squares gain in a linear model; the
   boundary-corrected LR p-value is half the chi-square one; Vuong's test is symmetric.
 * A user effect written here in a few lines (a cubic drag force) is registered, simulated,
@@ -83,6 +85,39 @@ def test_linear_drag_and_initial_push_match_closed_forms():
     assert (0.5 * a0 * t[-1] ** 2 + v0 * t[-1]) / s_exact[-1] > 1.1
 
 
+def test_initial_push_in_a_fit_keeps_the_base_models_release_time():
+    # Closed form: released at rest at t_b, the object has v = a0 (t - t_b), a0 = g (sin - k cos);
+    # released at t_b + v0 / a0 with speed v0, it moves the same from then on. In a fit the push
+    # leaves d (the effect's release delay, ~ v0 / a0) after the fitted release time t_r, so it
+    # matches the push-free motion released at t_b = t_r + d - v0 / a0 (= t_r for small pushes).
+    from galileo_jax.effects.library import INITIAL_PUSH
+    from galileo_jax.inference.problem import Problem, simulated_observation
+
+    scene = _scene(two=False, start=1.9)
+    th, k, v0, t_r = math.radians(20.0), 0.2, 0.3, 0.2
+    obs = simulated_observation(scene, PhysParams(jnp.array([0.5]), jnp.array([k])), fps=30.0, duration=1.0,
+                                release_time=t_r, position_sd=1e-9)
+    base, push = Problem(scene, obs), Problem(scene, obs, effects=("initial_push",))
+    assert push.names[-1] == "v0"
+    ctx = push.sim.ctx
+    a0 = G * (math.sin(th) - k * math.cos(th))
+    d = float(INITIAL_PUSH.release_delay(jnp.array([v0]), jnp.array([k]), ctx))
+    small = 0.05
+    assert float(INITIAL_PUSH.release_delay(jnp.array([small]), jnp.array([k]), ctx)) == pytest.approx(small / a0, rel=0.01)
+    theta = np.array([{"k1": k, "dt_release": 0.0, "scale_error": 0.0}[n] for n in base.names])
+    vp = np.asarray(push.simulate(np.append(theta, v0)))[0]
+    assert float(push.engine.release_time(jnp.asarray(np.append(theta, v0)), push.data)) == pytest.approx(t_r + d)
+    shifted = theta.copy()
+    shifted[base.names.index("dt_release")] = d - v0 / a0
+    vb = np.asarray(base.simulate(shifted))[0]
+    t0, t1 = obs.frame_times[:-1], obs.frame_times[1:]  # each velocity sample's frame interval
+    later, held = t0 > t_r + d + 1e-3, (t0 >= t_r) & (t1 <= t_r + d)
+    np.testing.assert_allclose(vp[later], vb[later], atol=0.01)
+    assert np.allclose(vp[held], 0.0, atol=1e-3)  # still held while the push-free slide has started
+    v_free = np.asarray(base.simulate(theta))[0]  # ... which the base model at t_r shows: the test can fail
+    assert np.max(np.abs(v_free[held])) > 0.1
+
+
 def test_velocity_friction_matches_closed_form_around_its_reference_speed():
     # k(v) = k + s (|v| - v_ref) on the ramp: v' = a0 - b v with a0 = g (sin - (k - s v_ref) cos),
     # b = g s cos, the same ODE as linear drag (v(0) = 0: s(t) = (a0/b) t - (a0/b)(1 - exp(-b t)) / b)
@@ -103,6 +138,16 @@ def test_velocity_friction_matches_closed_form_around_its_reference_speed():
     assert np.max(np.abs(s[late] - s_exact[late]) / s_exact[late]) < 0.03
     # constant friction k (the base model at the same k) would be 10% off at 0.8 s: the test can fail
     assert abs(0.5 * G * (math.sin(th) - k * math.cos(th)) * t[-1] ** 2 / s_exact[-1] - 1) > 0.1
+
+
+def test_screen_differences_skip_rollouts_that_blew_up():
+    from galileo_jax.diagnosis import finite_difference
+
+    res = np.array([[1.0, 2.0], [1.5, 2.5], [0.5, 1.0], [np.nan, 1.0]])  # rows: current, +h, -h, broken
+    assert np.allclose(finite_difference(res, 1, 2, 0.5), [1.0, 1.5])  # central
+    assert np.allclose(finite_difference(res, 1, 3, 0.5), [1.0, 1.0])  # -h broke: forward
+    assert np.allclose(finite_difference(res, 3, 2, 0.5), [1.0, 2.0])  # +h broke: backward
+    assert np.allclose(finite_difference(res, 3, None, 0.5), [0.0, 0.0])  # nothing finite: no information
 
 
 def test_score_statistic_is_the_linear_least_squares_gain():

@@ -24,6 +24,13 @@ code runs inside the jitted MJX rollout and, on NumPy inputs, in the C MuJoCo re
 * ``friction(k, state, values, ctx)``: every step, map the (n_objects, 2) sliding friction
   coefficients on (ramp, floor) to new ones (velocity-dependent friction, a ramp rougher
   than the floor).
+* ``release_delay(values, k, ctx)``: scalar, seconds by which the effect's motion starts
+  later than the fitted release time; ``k`` is the (n_objects,) base friction. It only acts
+  in the fit (:class:`~galileo_jax.inference.problem.Problem`), not in the simulator: it keeps
+  the fitted release time meaning what it means in the base model, so that an effect that
+  changes the start of the motion does not trade off against the release time (the base
+  fit then starts the refit near its optimum). ``initial_push`` uses it: a pushed object
+  leaves when a push-free one released at the fitted time would have reached v0.
 
 ``values`` is the (n_params,) array of the effect's parameters in the order of ``params``;
 ``state`` a :class:`BodyState`; ``ctx`` the static :class:`EffectContext`.
@@ -128,7 +135,7 @@ class Effect:
             effects the data cannot tell apart).
         source: where the formula comes from.
         applies: ``scene -> None`` if the effect can act in the scene, else a reason (str).
-        build, model, initial_velocity, force, friction: hooks (module docstring).
+        build, model, initial_velocity, force, friction, release_delay: hooks (module docstring).
     """
 
     name: str
@@ -142,6 +149,7 @@ class Effect:
     initial_velocity: Callable | None = field(default=None, repr=False)
     force: Callable | None = field(default=None, repr=False)
     friction: Callable | None = field(default=None, repr=False)
+    release_delay: Callable | None = field(default=None, repr=False)
 
     @property
     def structural(self) -> bool:

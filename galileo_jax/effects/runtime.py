@@ -88,6 +88,16 @@ def initial_velocity(effects, values_list, ctx):
     return v
 
 
+def release_delay(effects, values_list, k, ctx):
+    """Summed ``release_delay`` hooks (s, jnp scalar; 0 if none): how much later than the fitted
+    release time the motion with these effects starts. ``k``: (n_objects,) base friction."""
+    delay = jnp.zeros(())
+    for e, vals in zip(effects, values_list):
+        if e.release_delay is not None:
+            delay = delay + e.release_delay(vals, k, ctx)
+    return delay
+
+
 def forces(effects, values_list, state: BodyState, ctx):
     """(n_objects, 3) summed world forces of the effects, or None if no effect has a force."""
     total = None

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.effects.runtime import release_delay, split_values
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, Likelihood, make_likelihood
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
@@ -176,11 +177,23 @@ class Engine:
         tracker's estimate (pure)."""
         return velocity_profile(self.sim, params, data.frame_times, data.release_time, self.n_steps)
 
-    def profile_theta(self, theta: jax.Array, data: ProblemData) -> jax.Array:
-        """Unbatched simulated profile (2n, M) at theta (d,) (pure), as the camera sees it: the
-        release time is the tracker's estimate plus theta's ``dt_release``, velocities are
-        stretched by the scale factor 1 + ``scale_error`` (1 when the scale is exact)."""
+    def release_time(self, theta: jax.Array, data: ProblemData) -> jax.Array:
+        """Video time (s) at which the simulated objects start to move at theta (d,) (pure): the
+        tracker's estimate plus theta's ``dt_release``, plus the effects' ``release_delay``
+        (:mod:`galileo_jax.effects.base`; 0 without such an effect)."""
         release = data.release_time + self.space.release_offset(theta)
+        effects = self.sim.effects
+        if any(e.release_delay is not None for e in effects):
+            params = self.space.physical(theta)
+            release = release + release_delay(effects, split_values(effects, params.effects), params.friction,
+                                              self.sim.ctx)
+        return release
+
+    def profile_theta(self, theta: jax.Array, data: ProblemData) -> jax.Array:
+        """Unbatched simulated profile (2n, M) at theta (d,) (pure), as the camera sees it:
+        released at :meth:`release_time`, velocities stretched by the scale factor
+        1 + ``scale_error`` (1 when the scale is exact)."""
+        release = self.release_time(theta, data)
         profile = velocity_profile(self.sim, self.space.physical(theta), data.frame_times, release, self.n_steps)
         return profile * self.space.scale_factor(theta)
 
@@ -201,7 +214,7 @@ class Engine:
         """(M + 1, n_objects, 3) simulated poses (x m, z m, pitch rad) at the frame times (pure),
         as the camera sees them: displacements from the start stretched by 1 + ``scale_error``."""
         traj = rollout(self.sim, self.space.physical(theta), self.n_steps)
-        poses = sample_poses(traj, data.frame_times - data.release_time - self.space.release_offset(theta))
+        poses = sample_poses(traj, data.frame_times - self.release_time(theta, data))
         start = poses[:1, :, :2]
         xy = start + self.space.scale_factor(theta) * (poses[..., :2] - start)
         return poses.at[..., :2].set(xy)
