@@ -113,7 +113,25 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> dic
             "screen": screen, "verdict_base": d["verdict_base"], "verdict_final": d["verdict_final"],
             "fitted": {f.name: {n: [float(v), float(lo), float(hi)] for n, v, (lo, hi) in
                                 zip(f.result.names, f.result.theta, f.result.interval90)} for f in diag.fits},
-            "render_s": t_render, "diagnose_s": time.perf_counter() - t1, "timings": diag.timings}
+            "render_s": t_render, "diagnose_s": time.perf_counter() - t1, "timings": diag.timings,
+            "code": code_version()}
+
+
+def code_version() -> str:
+    """Commit of the checkout, with ``-modified`` if the package or this script differ from it
+    (records say which code made them)."""
+    import subprocess
+
+    def git(*args) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True, timeout=10)
+
+    try:
+        out = git("rev-parse", "--short", "HEAD").stdout.strip()
+        if out and git("diff", "--quiet", "HEAD", "--", "galileo_jax", "benchmarks/diagnose_calibration.py").returncode:
+            out += "-modified"
+    except (OSError, subprocess.SubprocessError):
+        out = ""
+    return out or "unknown"
 
 
 def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> float:
