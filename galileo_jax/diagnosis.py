@@ -14,7 +14,7 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    because there the simulator itself is inexact (next paragraph and
    :func:`~galileo_jax.likelihood.event_sd`); an effect that acts at an impact (restitution)
    still shows in every later sample. Over all samples the RMSE must still be within
-   ``adequate_ratio_all`` (2) of the floor: an effect that shows mostly around an event (a
+   ``adequate_ratio_all`` (1.6) of the floor: an effect that shows mostly around an event (a
    ramp friction, at the ramp's foot) is not waved through. (Measured on rendered videos
    without a hidden effect: the base RMSE was 0.4-1.3x the floor, except where the fitting
    simulator (MJX) and the renderer (C MuJoCo) disagree, e.g. around a second collision: 2.3x.)
@@ -122,11 +122,13 @@ class DiagnoseSettings:
         adequate_ratio: a model whose RMSE away from contact events is within this factor of
             the noise floor is adequate: nothing is left for an effect to explain, and no refit
             is run (issue 3's own standard of a good final model, 1.3) ...
-        adequate_ratio_all: ... provided its RMSE over all samples is within this factor (2.0).
-            Contact events may add error, but not more than the noise again: a hidden ramp
-            friction shows mostly around the ramp's foot (RMSE 0.0061 m/s away from events,
-            1.3x the floor, but 0.0144 m/s, 3.1x, on all samples). Measured base fits: videos
-            without a hidden effect 0.4-1.4x the floor on all samples, videos with one 3.0-9.9x.
+        adequate_ratio_all: ... provided its RMSE over all samples is within this factor (1.6).
+            Contact events may add error, but not much more: a hidden ramp friction shows
+            mostly around the ramp's foot (RMSE 0.0061 m/s away from events, 1.3x the floor,
+            but 0.0144 m/s, 3.1x, on all samples). Measured base fits on all samples: 20
+            videos without a hidden effect 0.35-1.35x the floor; 28 with one 1.0-9.9x, two
+            ramp-friction videos among them at 1.87x and 1.92x (event-free RMSE within 1.3x),
+            which the earlier factor 2.0 waved through as "no missing effect".
         max_effects: effects added one after another at most.
         likelihood, sd_model: likelihood kind and model-error floor (m/s), as in ``fit``.
         base_starts, base_screen: multi-start settings of the base fit.
@@ -159,7 +161,7 @@ class DiagnoseSettings:
     alpha: float = 0.05
     min_rmse_drop: float = 0.10
     adequate_ratio: float = 1.3
-    adequate_ratio_all: float = 2.0
+    adequate_ratio_all: float = 1.6
     max_effects: int = 1
     likelihood: str = DEFAULT_KIND
     sd_model: float = DEFAULT_SD_MODEL
