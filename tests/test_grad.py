@@ -151,3 +151,18 @@ def test_local_screen_draws_near_the_start_except_effect_parameters():
     assert x[:, 4].min() < lo[4] + 0.1 * span[4] and x[:, 4].max() > hi[4] - 0.1 * span[4]  # the effect: whole range
     strata = np.floor(((x[:, 4] - lo[4]) / span[4] - 0.05) / 0.9 * 200)  # the default 5% margin
     assert len(np.unique(strata)) == 200
+
+
+def test_gauss_newton_covariance_gives_a_blown_up_coordinate_no_made_up_interval():
+    from galileo_jax.inference.grad import gauss_newton_covariance
+
+    rng = np.random.default_rng(0)
+    jac = rng.normal(size=(50, 3))
+    full = gauss_newton_covariance(jac)
+    jac_bad = jac.copy()
+    jac_bad[7, 2] = np.nan  # the rollout at coordinate 2's difference step blew up
+    cov = gauss_newton_covariance(jac_bad)
+    assert np.isinf(cov[2, 2]) and np.all(cov[2, :2] == 0) and np.all(cov[:2, 2] == 0)
+    np.testing.assert_allclose(cov[:2, :2], gauss_newton_covariance(jac[:, :2]))
+    assert np.all(np.isfinite(full))  # all finite: the usual (J^T J)^-1
+    np.testing.assert_allclose(full, np.linalg.inv(jac.T @ jac), rtol=1e-6)

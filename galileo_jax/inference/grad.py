@@ -143,10 +143,23 @@ def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05
 
 
 def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
-    """(J^T J)^-1 for a (n, d) Jacobian of standardised residuals (pseudo-inverse if singular)."""
-    jtj = jac.T @ jac
-    jtj = jtj + ridge * np.trace(jtj) / max(jtj.shape[0], 1) * np.eye(jtj.shape[0])
-    return np.linalg.pinv(jtj, hermitian=True)
+    """(J^T J)^-1 for a (n, d) Jacobian of standardised residuals (pseudo-inverse if singular).
+
+    A coordinate whose Jacobian column is not finite (a rollout at its difference step blew
+    up, e.g. a stiff contact) gets an infinite variance and no covariance with the others: its
+    interval is the prior range, not a made-up number."""
+    jac = np.asarray(jac, np.float64)
+    d = jac.shape[1]
+    good = np.all(np.isfinite(jac), axis=0)
+    cov = np.zeros((d, d))
+    if good.any():
+        j = jac[:, good]
+        jtj = j.T @ j
+        jtj = jtj + ridge * np.trace(jtj) / max(jtj.shape[0], 1) * np.eye(jtj.shape[0])
+        cov[np.ix_(good, good)] = np.linalg.pinv(jtj, hermitian=True)
+    bad = np.flatnonzero(~good)
+    cov[bad, bad] = np.inf
+    return cov
 
 
 def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
@@ -317,8 +330,12 @@ def polish(problem, key: jax.Array, z: np.ndarray, cost: float, cov_z: np.ndarra
     """
     d = z.shape[0]
     sd = np.sqrt(np.maximum(np.diag(cov_z), 1e-12))
+    with np.errstate(invalid="ignore"):
+        corr = cov_z / np.outer(sd, sd)
+    corr = np.where(np.isfinite(corr), corr, 0.0)  # an infinite variance: no known correlation
+    np.fill_diagonal(corr, 1.0)
     try:
-        chol = np.linalg.cholesky(cov_z / np.outer(sd, sd) + 1e-9 * np.eye(d))
+        chol = np.linalg.cholesky(corr + 1e-9 * np.eye(d))
     except np.linalg.LinAlgError:  # a singular approximation: independent coordinates
         chol = np.eye(d)
     chol = chol * np.minimum(sd, max_sd)[:, None]
