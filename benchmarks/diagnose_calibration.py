@@ -52,16 +52,17 @@ def scene_for(effect: str, default: Path) -> Path:
     return SCENES.get(effect, default)
 
 
-def render_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> Path:
+def render_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> tuple[Path, float]:
     """Render video ``<work>/<effect>_<i>.mp4`` (with its ``.yaml`` scene and ``.truth.json``)
-    from parameters drawn for this (effect, index, seed); kept if already there. Returns its path."""
+    from parameters drawn for this (effect, index, seed); kept if already there. Returns its
+    path and the render time in s (nan when it was already there)."""
     from galileo_jax.effects import get_effect
     from galileo_jax.scene import load_scene
     from galileo_jax.synth import draw_informative_params, render_video
 
     video = work / f"{effect}_{i}.mp4"
     if video.exists() and video.with_suffix(".truth.json").exists() and video.with_suffix(".yaml").exists():
-        return video
+        return video, float("nan")
     scene = load_scene(scene_path)
     rng = np.random.default_rng(seed * 1000 + i + 17 * len(effect))
     effects = () if effect == "none" else (get_effect(effect).name,)
@@ -70,11 +71,7 @@ def render_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> 
     t0 = time.perf_counter()
     render_video(scene, params, video, fps=FPS, duration=DURATION, width=480, height=270, noise_sd=2.0,
                  seed=seed + i, progress=False, effects=effects)
-    truth_path = video.with_suffix(".truth.json")
-    truth = json.loads(truth_path.read_text())
-    truth["render_s"] = time.perf_counter() - t0
-    write_atomic(truth_path, json.dumps(truth, indent=1))
-    return video
+    return video, time.perf_counter() - t0
 
 
 def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> dict:
@@ -83,13 +80,12 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> dic
     from galileo_jax.observe import observe, read_video
     from galileo_jax.scene import load_scene
 
-    video = render_one(scene_path, effect, i, work, seed)
+    video, t_render = render_one(scene_path, effect, i, work, seed)
     truth = json.loads(video.with_suffix(".truth.json").read_text())
     effects = tuple(truth["hidden_effects"])
     params = {k: truth[k] for k in ("m1", "k1", "m2", "k2") if k in truth}
     for name in effects:
         params.update(truth["effects"][name])
-    t_render = truth.get("render_s", float("nan"))
     rendered_scene = load_scene(video.with_suffix(".yaml"))
     clip = read_video(video, fps_override=rendered_scene.video.fps)
     obs = observe(clip, rendered_scene, progress=False)
@@ -201,7 +197,7 @@ def main(argv=None) -> int:
                 continue
             scene_path = scene_for(effect, Path(args.scene))
             if args.stage == "render":
-                print(f"rendered {render_one(scene_path, effect, i, work, args.seed)}", flush=True)
+                print(f"rendered {render_one(scene_path, effect, i, work, args.seed)[0]}", flush=True)
                 continue
             if args.stage == "analyse" and not (work / f"{effect}_{i}.mp4").exists():
                 print(f"{effect} #{i}: not rendered, skipped", flush=True)
