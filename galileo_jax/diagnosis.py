@@ -381,6 +381,10 @@ class Union:
             offset += t
         return np.concatenate(out)
 
+    def samples_used(self) -> list[int]:
+        """Per video the number of fitted velocity samples, all traces (the RMSE pooling weights)."""
+        return [int(np.sum(p.observation.mask)) * p.likelihood.obs.shape[0] for p in self.problems]
+
     def theta_for(self, j: int, theta: np.ndarray) -> np.ndarray:
         """Video j's coordinates of the union's theta."""
         if isinstance(self.problem, JointProblem):
@@ -453,15 +457,17 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
                            generations=settings.refit_search, seed=int(jax.random.randint(key, (), 0, 2**30)),
                            fixed=held)
         search = {"method": "CMA-ES (pycma)", "generations": found.generations, "evaluations": found.evaluations,
-                  "loglik_lm": res.loglik, "rmse_lm": union_rmse(union, res.theta), "loglik_search": found.loglik,
-                  "time_s": found.time_s, "used": False}
+                  "loglik_lm": res.loglik, "loglik_search": found.loglik, "time_s": found.time_s, "used": False}
         if found.loglik > res.loglik + 1e-6:  # LM again from the search's best point, for the covariance
             again = fit_grad(union.problem, jax.random.fold_in(key, 1), n_starts=0, n_screen=0, init=found.theta,
                              fixed=held, max_steps=settings.max_steps)
             if again.loglik > res.loglik:
-                res, search["used"] = again, True
+                search.update(used=True, rmse_lm=union_rmse(union, res.theta))
+                res = again
         search["loglik"] = res.loglik
     fit = evaluate(union, res, free_effects, settings)
+    if search is not None:
+        search.setdefault("rmse_lm", fit.rmse)  # the search's point was not used: LM's end is the fit
     fit.search = search
     return fit
 
@@ -478,7 +484,7 @@ def union_rmse(union: Union, theta: np.ndarray) -> float:
     """Profile RMSE (m/s) over every video's fit window at the union's ``theta``."""
     rmse = [profile_rmse(p.observation, simulate_video(p, union.theta_for(j, theta))[1])
             for j, p in enumerate(union.problems)]
-    return pooled_rms(rmse, [int(np.sum(p.observation.mask)) * p.likelihood.obs.shape[0] for p in union.problems])
+    return pooled_rms(rmse, union.samples_used())
 
 
 def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSettings) -> ModelFit:
@@ -498,7 +504,7 @@ def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSett
         # whitened CUSUM flagged the heavy-tailed but unstructured residuals of a real clip (p = 4e-24)
         videos.append(VideoFit(simulated, poses, p.likelihood.used_residuals(simulated), profile_rmse(obs, simulated),
                                criticism.summarize(obs, simulated, poses, settings.sd_model), z_test))
-    n_used = [int(np.sum(p.observation.mask)) * p.likelihood.obs.shape[0] for p in union.problems]
+    n_used = union.samples_used()
     name = "base" if not free_effects else "base + " + " + ".join(free_effects)
     if isinstance(union.problem, JointProblem):
         summary = {"parameters": {n: {"mean": float(t), "sd": float(s), "interval90": [float(a), float(b)]}

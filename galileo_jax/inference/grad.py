@@ -187,6 +187,23 @@ def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
 INIT_MARGIN = 0.01
 
 
+def start_point(space, theta, what: str = "init") -> np.ndarray:
+    """A user's start ``theta`` (d,) checked against ``space`` and moved :data:`INIT_MARGIN` of
+    the range inward from the bounds (the logistic transform is flat there, so a local
+    optimiser could not leave a start on a bound).
+
+    Raises:
+        ValueError: wrong shape, or values outside the bounds (the message names ``what``).
+    """
+    theta = np.asarray(theta, np.float64)
+    if theta.shape != (space.dim,):
+        raise ValueError(f"{what} must have shape ({space.dim},) for parameters {list(space.names)}, got {theta.shape}")
+    lo, hi = np.asarray(space.lower, np.float64), np.asarray(space.upper, np.float64)
+    if not np.all((theta >= lo) & (theta <= hi)):
+        raise ValueError(f"{what} {theta.tolist()} is outside the bounds {list(zip(space.lower, space.upper))}")
+    return np.clip(theta, lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))
+
+
 def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
              init: np.ndarray | None = None, fixed: dict[str, float] | None = None,
              jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
@@ -255,13 +272,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         raise ValueError(f"n_screen ({n_screen}) must be >= n_starts ({n_starts})")
     starts = []
     if init is not None:
-        init = np.asarray(init, np.float64)
-        if init.shape != (d,):
-            raise ValueError(f"init must have shape ({d},) for parameters {list(space.names)}, got {init.shape}")
-        lo, hi = np.asarray(space.lower), np.asarray(space.upper)
-        if not np.all((init >= lo) & (init <= hi)):
-            raise ValueError(f"init {init.tolist()} is outside the bounds {list(zip(space.lower, space.upper))}")
-        init = np.clip(init, lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))
+        init = start_point(space, init)
         starts.append(jnp.asarray(init)[None])
     t0 = time.perf_counter()
     if n_starts > 0:

@@ -89,21 +89,14 @@ def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int 
     import cma  # pycma: imported here, only diagnose's refits need it
 
     from galileo_jax.inference.fixed import FixedProblem
-    from galileo_jax.inference.grad import INIT_MARGIN
+    from galileo_jax.inference.grad import start_point
 
     if not sigma > 0 or popsize < 4 or generations < 1:
         raise ValueError(f"need sigma > 0, popsize >= 4, generations >= 1; got {sigma}, {popsize}, {generations}")
-    space = problem.space
-    theta0 = np.asarray(theta0, np.float64)
-    lo, hi = np.asarray(space.lower, np.float64), np.asarray(space.upper, np.float64)
-    if theta0.shape != (space.dim,):
-        raise ValueError(f"theta0 must have shape ({space.dim},) for parameters {list(space.names)}, got {theta0.shape}")
-    if not np.all((theta0 >= lo) & (theta0 <= hi)):
-        raise ValueError(f"theta0 {theta0.tolist()} is outside the bounds {list(zip(space.lower, space.upper))}")
+    start = start_point(problem.space, theta0, "theta0")
     sub = FixedProblem(problem, fixed) if fixed else problem
-    free = list(sub.free) if fixed else list(range(space.dim))
-    start = np.clip(theta0, lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))[free]
-    z0 = np.asarray(sub.space.to_unconstrained(jnp.asarray(start)), np.float64)
+    free = list(sub.free) if fixed else list(range(problem.space.dim))
+    z0 = np.asarray(sub.space.to_unconstrained(jnp.asarray(start[free])), np.float64)
 
     def loglik(z: np.ndarray) -> np.ndarray:
         ll = np.asarray(sub.log_likelihood(jnp.asarray(z)), np.float64)
@@ -112,18 +105,16 @@ def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int 
     t0 = time.perf_counter()
     best_z, best_ll = z0, float(loglik(z0[None])[0])
     ll_start, evals = best_ll, 1
-    pad = 1 if z0.size == 1 else 0  # pycma needs two or more dimensions: search a dummy second one
-    es = cma.CMAEvolutionStrategy(np.concatenate([z0, np.zeros(pad)]), float(sigma),
-                                  {"popsize": int(popsize), "maxiter": int(generations), "seed": int(seed) + 1,
-                                   "verbose": -9})
+    es = cma.CMAEvolutionStrategy(z0, float(sigma), {"popsize": int(popsize), "maxiter": int(generations),
+                                                     "seed": int(seed) + 1, "verbose": -9})
     while not es.stop():
         x = np.asarray(es.ask(), np.float64)
-        ll = loglik(x[:, :z0.size])
+        ll = loglik(x)
         evals += len(x)
         es.tell(list(x), list(np.where(np.isfinite(ll), -ll, _BAD)))
         i = int(np.argmax(ll))
         if ll[i] > best_ll:
-            best_z, best_ll = x[i, :z0.size].copy(), float(ll[i])
+            best_z, best_ll = x[i].copy(), float(ll[i])
         if progress is not None:
             progress(es.countiter, best_ll)
     theta_free = np.asarray(sub.space.from_unconstrained(jnp.asarray(best_z)), np.float64)
