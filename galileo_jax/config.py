@@ -25,10 +25,12 @@ class _Strict(BaseModel):
 
 
 class MHConfig(_Strict):
-    """Random-walk Metropolis-Hastings: chains advanced together, warm-up and kept steps."""
+    """Random-walk Metropolis-Hastings: chains advanced together, warm-up and kept steps
+    (``warmup_cnn``: warm-up when the chains start from the CNN, ``--init cnn``)."""
 
     chains: int = Field(16, ge=2, le=1024)
     warmup: int = Field(300, ge=0)
+    warmup_cnn: int = Field(100, ge=0)
     samples: int = Field(400, ge=10)
 
 
@@ -46,6 +48,16 @@ class GradConfig(_Strict):
     screen: int = Field(256, ge=1, le=4096)
     max_steps: int = Field(40, ge=1)
     jacobian: Literal["fd", "ad"] = "fd"
+
+
+class CNNConfig(_Strict):
+    """The amortised-inference CNN (``--method cnn``, ``--init cnn``): the model folder (None:
+    the shipped model matching the scene, under ``models/``) and, for grad started from it,
+    the smallest half-width of the screen around its estimate (fraction of each range; wider
+    where the CNN's 90% interval is wider)."""
+
+    model: str | None = None
+    local_screen: float = Field(0.05, gt=0, le=1)
 
 
 class LikelihoodConfig(_Strict):
@@ -70,6 +82,7 @@ class FitConfig(_Strict):
     mh: MHConfig = MHConfig()
     seed_mh: SeedMHConfig = SeedMHConfig()
     grad: GradConfig = GradConfig()
+    cnn: CNNConfig = CNNConfig()
     likelihood: LikelihoodConfig = LikelihoodConfig()
     prediction: PredictionConfig = PredictionConfig()
 
@@ -82,16 +95,26 @@ def load_config(path: str | Path | None) -> FitConfig:
     """
     if path is None:
         return FitConfig()
+    return load_yaml_model(path, FitConfig, "configs/fit.yaml")
+
+
+def load_yaml_model(path: str | Path, model: type[BaseModel], example: str) -> BaseModel:
+    """Read YAML file ``path`` into the pydantic ``model`` (any subset of its keys).
+
+    Raises:
+        ConfigError: missing file, invalid YAML, unknown key or bad value; the one-line message
+            names the key and points to ``example``.
+    """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"config file {path} not found; see configs/fit.yaml for the format")
+        raise ConfigError(f"config file {path} not found; see {example} for the format")
     try:
         data = yaml.safe_load(path.read_text()) or {}
-        return FitConfig.model_validate(data)
+        return model.model_validate(data)
     except yaml.YAMLError:
         raise ConfigError(f"config file {path} is not valid YAML; fix the syntax") from None
     except ValidationError as err:
         first = err.errors()[0]
         loc = ".".join(str(p) for p in first["loc"])
         msg = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
-        raise ConfigError(f"config file {path}: {loc}: {msg} (see configs/fit.yaml)") from None
+        raise ConfigError(f"config file {path}: {loc}: {msg} (see {example})") from None

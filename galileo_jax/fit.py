@@ -1,4 +1,4 @@
-"""``python -m galileo_jax.fit VIDEO --method grad|mh|seed``: physical properties from a ramp video.
+"""``python -m galileo_jax.fit VIDEO --method grad|mh|cnn|seed [--init cnn]``: physical properties from a ramp video.
 
 Pipeline: read the video and scene -> track the objects -> velocity profiles -> fit
 (m1, k1, m2, k2) against vmapped MJX rollouts -> report (console, ``result.json``,
@@ -27,7 +27,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from galileo_jax.cli import OneLineParser, videos_and_scenes  # noqa: E402
 from galileo_jax.errors import GalileoError, cli_entry  # noqa: E402
 
-METHODS = ("grad", "mh", "seed")
+METHODS = ("grad", "mh", "cnn", "seed")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,7 +39,11 @@ def build_parser() -> argparse.ArgumentParser:
                                                     "give it once for all videos or once per video")
     p.add_argument("--method", default="grad", choices=METHODS,
                    help="grad: Levenberg-Marquardt (fast); mh: Metropolis-Hastings posterior; "
+                        "cnn: the trained network's amortised estimate (one forward pass); "
                         "seed: the seed's coin-toss sampler (baseline, one video)")
+    p.add_argument("--init", default="prior", choices=("prior", "cnn"),
+                   help="grad/mh: start from the prior (default) or from the trained CNN's estimate")
+    p.add_argument("--cnn-model", help="trained CNN folder (default: the shipped model matching the scene, models/)")
     p.add_argument("--per-video", help="several videos: parameters fitted per video, comma-separated "
                                        "(default: all shared except dt_release and v0)")
     p.add_argument("--out", help="output folder (default: <first video>_fit next to it)")
@@ -72,6 +76,10 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         cfg.grad.starts = args.starts
     if args.likelihood is not None:
         cfg.likelihood.kind = args.likelihood
+    if args.cnn_model is not None:
+        cfg.cnn.model = args.cnn_model
+    if args.warmup is not None:
+        cfg.mh.warmup_cnn = args.warmup
     if args.effects is not None:
         from galileo_jax.effects import resolve_effects
 
@@ -90,8 +98,12 @@ def main(argv: list[str] | None = None) -> int:
     inputs = videos_and_scenes(args.videos, args.scene)
     cfg = _settings(args)
     per_video = tuple(s.strip() for s in (args.per_video or "").split(",") if s.strip())
-    if len(inputs) > 1 and args.method == "seed":
-        raise GalileoError("the seed's sampler fits one video; use --method grad or mh for several")
+    if len(inputs) > 1 and args.method in ("seed", "cnn"):
+        raise GalileoError(f"--method {args.method} fits one video; use --method grad or mh for several")
+    if args.init == "cnn" and args.method in ("seed", "cnn"):
+        raise GalileoError(f"--init cnn starts grad or mh; --method {args.method} has no starting point")
+    if len(inputs) > 1 and args.init != "prior":
+        raise GalileoError("--init cnn fits one video; a joint fit of several videos starts from the prior")
     if per_video and len(inputs) == 1:
         raise GalileoError("--per-video needs several videos")
     first = inputs[0][0]
@@ -113,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
 
     video, scene = inputs[0]
     fit = run_fit(video, scene, cfg, method=args.method, out=out, fps=args.fps, seed=args.seed,
-                  overlay=not args.no_video, progress=not args.quiet)
+                  overlay=not args.no_video, progress=not args.quiet, init=args.init)
     print(summary_text(fit, elapsed=time.perf_counter() - t0))
     return 0
 

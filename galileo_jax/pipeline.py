@@ -35,7 +35,7 @@ class FitReport:
     Attributes:
         video: path of the video.
         scene: the scene.
-        method: "grad", "mh" or "seed".
+        method: "grad", "mh", "cnn" or "seed".
         observation: the tracked :class:`Observation`.
         parameters: per reported parameter (k1, k2, phi, m1, m2 as applicable) a dict with
             ``estimate``, ``mean``, ``median``, ``sd``, ``interval90`` [lo, hi], ``best``,
@@ -71,29 +71,61 @@ def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
     return params, summary_dict["diagnostics"]
 
 
-def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool):
-    """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None)."""
+def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool, init: str = "prior"):
+    """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None).
+
+    ``init="cnn"``: grad and mh start from the trained CNN's estimate (:func:`cnn_estimate`):
+    grad runs one Levenberg-Marquardt start from it plus the best of a screen around it, as
+    wide as the CNN's 90% interval and at least +-``cfg.cnn.local_screen`` of each range
+    (:func:`cnn_screen`); mh starts its chains at draws from
+    the CNN's posterior, without annealing, for ``cfg.mh.warmup_cnn`` warm-up steps (unless
+    ``--warmup`` is given). The CNN's own estimate and time go into the diagnostics.
+    """
     from galileo_jax.inference import summary
 
     k_run, k_sum = jax.random.split(key)
+    if init not in ("prior", "cnn"):
+        raise GalileoError(f"unknown --init {init!r}; choose prior or cnn")
+    start = None
+    if init == "cnn" or method == "cnn":
+        if method == "seed":
+            raise GalileoError("--init cnn works with --method grad or mh; the seed's sampler starts from the prior")
+        start = cnn_estimate(problem, cfg, jax.random.fold_in(key, 7))
+        if method == "cnn":
+            loglik = float(problem.log_likelihood(problem.space.to_unconstrained(jnp.asarray(start.theta))[None])[0])
+            result = summary.summarize_cnn(start, problem.space, loglik)
+            params, diag = _with_estimate(result, "median")
+            return params, diag, start.theta, start.draws[:cfg.prediction.draws]
+    cnn_diag = {} if start is None else {"init": "cnn", "cnn_theta": dict(zip(start.names, map(float, start.theta))),
+                                         "cnn_time_s": float(start.time_s), "cnn_model": str(start.model.path)}
     if method == "grad":
         from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
 
-        res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
-                       jacobian=cfg.grad.jacobian,
-                       max_steps=cfg.grad.max_steps)
+        if start is None:
+            res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
+                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
+        else:
+            res = fit_grad(problem, k_run, n_starts=1, n_screen=cfg.grad.screen, init=start.theta,
+                           local_screen=cnn_screen(start, problem.space, cfg.cnn.local_screen),
+                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
         params, diag = _with_estimate(summary.summarize_grad(res, problem.space), "mean")
         draws = gauss_newton_draws(res, problem.space, k_sum, cfg.prediction.draws)
-        return params, diag, np.asarray(res.theta), draws
+        return params, {**diag, **cnn_diag}, np.asarray(res.theta), draws
     if method == "mh":
         from galileo_jax.inference.mh import run_mh
 
-        res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
-                     progress=progress)
+        if start is None:
+            res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
+                         progress=progress)
+        else:
+            idx = np.random.default_rng(1).choice(len(start.draws), size=cfg.mh.chains, replace=len(start.draws) < cfg.mh.chains)
+            sd_z = float(np.clip(np.median(start.sd_z), 0.01, 0.5)) if np.any(start.sd_z > 0) else 0.1
+            res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup_cnn, n_samples=cfg.mh.samples,
+                         init_theta=start.draws[idx], init_sd=sd_z, anneal=0.0, progress=progress)
         params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
         flat = res.theta.reshape(-1, res.theta.shape[-1])
         idx = np.random.default_rng(0).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
-        return params, diag, np.asarray(res.best_theta), flat[idx]
+        return params, {**diag, **cnn_diag}, np.asarray(res.best_theta), flat[idx]
     if method == "seed":
         from galileo_jax.inference.seed_mh import run_seed_mh
 
@@ -104,7 +136,31 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
                 "likelihood": res.likelihood, "time_s": float(res.time_s)}
         theta = np.array([params[n]["estimate"] for n in problem.space.names])
         return params, diag, theta, None
-    raise GalileoError(f"unknown method {method!r}; choose grad, mh or seed")
+    raise GalileoError(f"unknown method {method!r}; choose grad, mh, cnn or seed")
+
+
+def cnn_screen(est, space, minimum: float) -> np.ndarray:
+    """(d,) half-widths, as fractions of each range, of grad's screen around the CNN's estimate:
+    the farther end of the CNN's 90% interval from its estimate, at least ``minimum``. Where
+    the network is sure (k1, the release) the screen is narrow; where the video told it little
+    (k2, phi when object 2 barely moves) it spans what the network could not rule out."""
+    lo, hi = np.asarray(space.lower), np.asarray(space.upper)
+    half = np.maximum(np.abs(est.theta - est.interval90[:, 0]), np.abs(est.interval90[:, 1] - est.theta))
+    return np.maximum(half / (hi - lo), minimum)
+
+
+def cnn_estimate(problem: Problem, cfg: FitConfig, key):
+    """The trained CNN's estimate for ``problem``'s video (:func:`galileo_jax.inference.cnn.estimate`),
+    with the model ``cfg.cnn.model`` or the shipped one matching the scene.
+
+    Raises:
+        CNNError: no model fits the scene, frame rate or the fit's coordinates (one line, with
+            how to train one).
+    """
+    from galileo_jax.inference import cnn
+
+    model = cnn.find_model(problem.scene, problem.observation.fps, cfg.cnn.model)
+    return cnn.estimate(model, problem.observation, problem.space, key)
 
 
 def _simulate_batch(problem: Problem, thetas: np.ndarray) -> np.ndarray:
@@ -158,28 +214,34 @@ def simulated_poses(problem: Problem, theta: np.ndarray) -> np.ndarray:
 
 
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
-            seed: int = 0, overlay: bool = True, progress: bool = True) -> FitReport:
+            seed: int = 0, overlay: bool = True, progress: bool = True, init: str = "prior") -> FitReport:
     """Fit one video and write the results (see module docstring).
 
     Args:
         video: video path.
         scene: validated scene of the video.
         cfg: settings.
-        method: "grad", "mh" or "seed".
+        method: "grad", "mh", "cnn" or "seed".
         out: output folder (created; existing files are replaced atomically).
         fps: frame-rate override.
         seed: random seed.
         overlay: write the overlay video.
         progress: show progress bars.
+        init: "prior" or "cnn" (grad and mh start from the trained CNN's estimate).
 
     Raises:
-        GalileoError: bad video, tracking failure, unknown method or likelihood.
+        GalileoError: bad video, tracking failure, unknown method or likelihood, no CNN for
+            the scene (method cnn or init cnn).
     """
     from galileo_jax.observe import observe, read_video
 
     timings = {}
     t = time.perf_counter()
     clip = read_video(video, fps_override=fps or scene.video.fps)
+    if method == "cnn" or init == "cnn":  # no trained model for this scene: say so before tracking
+        from galileo_jax.inference.cnn import find_model
+
+        find_model(scene, clip.fps, cfg.cnn.model)
     obs = observe(clip, scene, progress=progress)
     timings["observe_s"] = time.perf_counter() - t
 
@@ -190,7 +252,7 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
-    parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress)
+    parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress, init)
     timings["inference_s"] = time.perf_counter() - t
 
     t = time.perf_counter()

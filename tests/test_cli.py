@@ -180,3 +180,20 @@ def test_several_videos_bad_input(tmp_path):
     assert_one_line_error(run_cli("galileo_jax.fit", str(video), str(video), "--method", "seed"), "one video")
     assert_one_line_error(run_cli("galileo_jax.fit", str(video), str(video), "--per-video", "k9", "--no-video"),
                           "k9", "per_video")
+
+
+def test_cnn_bad_input(tmp_path):
+    """fit --method cnn / --init cnn: no model for the scene, a folder that is no model, and
+    combinations that do not apply are one-line errors (before any tracking)."""
+    ramp10 = EXAMPLE.with_suffix(".yaml").read_text().replace("angle_deg: 20.0", "angle_deg: 10.0")
+    video = copy_example(tmp_path, ramp10)
+    assert_one_line_error(run_cli("galileo_jax.fit", str(video), "--method", "cnn"),
+                          "no trained CNN matches scene", "galileo_jax.train")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--init", "cnn", "--cnn-model", str(tmp_path)),
+                          "not a trained CNN model")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--method", "seed", "--init", "cnn"), "--init cnn")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), str(EXAMPLE), "--method", "cnn"), "one video")
+    assert_one_line_error(run_cli("galileo_jax.train", "--config", str(tmp_path / "none.yaml")), "not found")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("stepz: 3\n")
+    assert_one_line_error(run_cli("galileo_jax.train", "--config", str(bad)), "stepz", "unknown key")

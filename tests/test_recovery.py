@@ -85,3 +85,33 @@ def test_mh_interval_contains_truth(rendered):
     for name in ("k1", "phi"):
         lo, hi = summary[name]["interval90"]
         assert lo <= truth[name] <= hi, (name, lo, hi, truth[name])
+
+
+def test_cnn_and_grad_started_from_it_on_rendered_video(rendered):
+    """The shipped CNN (issue 4) on the same tracked videos: one forward pass gets k1 within
+    0.03 on at least 4 of 5; grad started from it (``fit --init cnn``: one start plus a screen
+    as wide as the CNN's intervals) then gets k1, k2, phi within 0.02, 0.05, 0.1 on video 0."""
+    from galileo_jax.inference import cnn
+    from galileo_jax.pipeline import cnn_screen
+
+    errors = []
+    for i, (scene, obs, truth) in enumerate(rendered):
+        problem = _problem(scene, obs)
+        model = cnn.find_model(scene, obs.fps)
+        est = cnn.estimate(model, obs, problem.space, jax.random.PRNGKey(i))
+        d = dict(zip(est.names, est.theta))
+        errors.append([abs(d[n] - truth[n]) for n in ("k1", "k2", "phi")])
+        if i == 0:
+            res = fit_grad(problem, jax.random.PRNGKey(0), n_starts=1, n_screen=CFG.grad.screen, init=est.theta,
+                           local_screen=cnn_screen(est, problem.space, CFG.cnn.local_screen),
+                           max_steps=CFG.grad.max_steps)
+            g = dict(zip(res.names, res.theta))
+            # One start near the CNN is cheaper than grad's 4 global starts but lands in a
+            # slightly worse optimum now and then (benchmarks/results/cnn_videos.md: mean k2
+            # error 0.049 vs 0.039 on 6 videos); it must still improve on the CNN's k2 and phi.
+            assert abs(g["k1"] - truth["k1"]) <= 0.02 and abs(g["k2"] - truth["k2"]) <= 0.05
+            assert abs(g["phi"] - truth["phi"]) <= 0.1
+            assert abs(g["k2"] - truth["k2"]) < max(abs(d["k2"] - truth["k2"]), 0.02)
+    errors = np.array(errors)
+    print("cnn |error| (k1, k2, phi) per video:\n", np.round(errors, 4))
+    assert (errors[:, 0] <= 0.03).sum() >= 4, errors

@@ -117,12 +117,12 @@ RELEASE_START_FRACTION = 0.1
 
 
 def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05,
-                           around: np.ndarray | None = None, spread: float = 0.25) -> jax.Array:
+                           around: np.ndarray | None = None, spread: float | jax.Array = 0.25) -> jax.Array:
     """n starting points theta (n, d), a Latin hypercube over the bounds (shrunk by ``margin``;
     a release-time coordinate over :data:`RELEASE_START_FRACTION` of its range around 0).
 
     With ``around`` (d,), every coordinate except the effect parameters is drawn within
-    +-``spread`` of its range around ``around`` (clipped to the bounds): a local screen for
+    +-``spread`` (scalar or (d,)) of its range around ``around`` (clipped to the bounds): a local screen for
     refitting a model plus one effect near the model's estimate, where the effect's value is
     unknown but the other parameters move only as far as the effect makes them."""
     d = problem.dim
@@ -208,7 +208,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
              init: np.ndarray | None = None, fixed: dict[str, float] | None = None,
              jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
              max_steps: int = 40, polish_rounds: int = 3, polish_points: int = 64,
-             local_screen: float | None = None) -> GradResult:
+             local_screen: float | np.ndarray | None = None) -> GradResult:
     """Multi-start Levenberg-Marquardt maximum-likelihood fit with a Gauss-Newton uncertainty.
 
     Arguments:
@@ -233,9 +233,9 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         max_steps: LM step limit per start.
         polish_rounds, polish_points: after LM, rounds of a batched local random search
             (:func:`polish`; 0 rounds switch it off).
-        local_screen: with ``init``, screen the starts within +-``local_screen`` of each
-            range around ``init`` instead of over the whole prior box, effect parameters
-            excepted (:func:`latin_hypercube_starts`).
+        local_screen: with ``init``, screen the starts within +-``local_screen`` (a fraction,
+            or (d,) fractions, one per coordinate) of each range around ``init`` instead of
+            over the whole prior box, effect parameters excepted (:func:`latin_hypercube_starts`).
 
     Returns:
         :class:`GradResult`.
@@ -277,7 +277,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     t0 = time.perf_counter()
     if n_starts > 0:
         around = None if (local_screen is None or init is None) else init
-        cand = latin_hypercube_starts(problem, key, n_screen, around=around, spread=local_screen or 0.25)
+        spread = 0.25 if local_screen is None else jnp.asarray(local_screen, jnp.float64)
+        cand = latin_hypercube_starts(problem, key, n_screen, around=around, spread=spread)
         ll = np.asarray(problem.log_likelihood(space.to_unconstrained(cand)))
         ll = np.where(np.isfinite(ll), ll, -np.inf)
         starts.append(cand[np.argsort(-ll, kind="stable")[:n_starts]])

@@ -177,15 +177,48 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     mass known) gets its SD by the delta method and interval estimate +- 1.645 sd. R-hat and
     ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s.
     """
-    theta = np.asarray(result.theta, np.float64)
+    params = point_parameters(space, result.theta, result.sd, result.interval90, result.cov_theta,
+                              getattr(result, "fixed", ()))
+    diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
+                   "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
+                   "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s)}
+    return {"method": "grad", "parameters": params, "diagnostics": diagnostics}
+
+
+def summarize_cnn(est, space: ParamSpace, loglik: float) -> dict:
+    """Summarise a :class:`~galileo_jax.inference.cnn.CNNEstimate` in the MH dict shape:
+    estimate = the network's median, sd and interval90 from its Gaussian head (delta-method
+    phi as for grad). ``diagnostics``: the model, its architecture and training, the forward
+    pass time and the log-likelihood at the estimate (nats)."""
+    params = point_parameters(space, est.theta, est.sd, est.interval90, np.diag(np.asarray(est.sd) ** 2), ())
+    m = est.model
+    diagnostics = {"model": str(m.path), "architecture": m.spec.architecture, "scene": m.spec.scene,
+                   "trained_steps": m.info.get("trained_steps"), "examples_seen": m.info.get("examples_seen"),
+                   "loglik": float(loglik), "time_s": float(est.time_s),
+                   "note": "amortised estimate of a network trained on simulations of this scene; its intervals are "
+                           "calibrated on simulations (benchmarks/results/cnn_accuracy.md), not on this video"}
+    return {"method": "cnn", "parameters": params, "diagnostics": diagnostics}
+
+
+def point_parameters(space: ParamSpace, theta, sd, interval90, cov_theta, fixed=()) -> dict:
+    """The parameters part of a summary from a point estimate with an uncertainty.
+
+    Arguments:
+        theta: (d,) estimate; sd: (d,) SDs; interval90: (d, 2) 90% intervals; cov_theta: (d, d)
+        covariance (for a derived phi's delta-method SD); fixed: names held at given values.
+
+    Raises:
+        ValueError: ``theta`` is not of shape (d,).
+    """
+    theta = np.asarray(theta, np.float64)
     if theta.shape != (space.dim,):
         raise ValueError(f"result.theta must have shape ({space.dim},), got {theta.shape}")
     idx = {n: j for j, n in enumerate(space.names)}
 
     def est(name):
         j = idx[name]
-        return _entry(mean=float(theta[j]), median=float(theta[j]), sd=float(result.sd[j]),
-                      interval90=[float(v) for v in result.interval90[j]], best=float(theta[j]))
+        return _entry(mean=float(theta[j]), median=float(theta[j]), sd=float(sd[j]),
+                      interval90=[float(v) for v in interval90[j]], best=float(theta[j]))
 
     params: dict[str, dict] = {}
     for i in range(space.n_objects):
@@ -201,9 +234,10 @@ def summarize_grad(result, space: ParamSpace) -> dict:
                 params["phi"] = _known(value)
             else:
                 g = np.asarray(jax.grad(phi_fn)(jnp.asarray(theta, jnp.float64)), np.float64)
-                sd = float(np.sqrt(max(g @ np.asarray(result.cov_theta) @ g, 0.0)))
-                params["phi"] = _entry(mean=value, median=value, sd=sd, best=value,
-                                       interval90=[max(value - 1.6448536 * sd, -1.0), min(value + 1.6448536 * sd, 1.0)])
+                sd_phi = float(np.sqrt(max(g @ np.asarray(cov_theta) @ g, 0.0)))
+                params["phi"] = _entry(mean=value, median=value, sd=sd_phi, best=value,
+                                       interval90=[max(value - 1.6448536 * sd_phi, -1.0),
+                                                   min(value + 1.6448536 * sd_phi, 1.0)])
     for i in range(space.n_objects):
         name = f"m{i + 1}"
         if space.known_mass[i] is not None:
@@ -213,16 +247,13 @@ def summarize_grad(result, space: ParamSpace) -> dict:
         else:
             note = NOT_IDENTIFIABLE_ONE if space.n_objects == 1 else NOT_IDENTIFIABLE.split(";")[0]
             params[name] = _entry(identifiable=False, note=note)
-    held = set(getattr(result, "fixed", ()))
+    held = set(fixed)
     for name in _effect_names(space):
         if name not in held:  # an effect held at a value is not part of this model's report
             params[name] = {**est(name), "note": _effect_note(name)}
     for name in held & set(params):
         params[name] = _known(float(theta[idx[name]]), note="held fixed, not fitted")
-    diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
-                   "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
-                   "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s)}
-    return {"method": "grad", "parameters": params, "diagnostics": diagnostics}
+    return params
 
 
 def summarize_coordinates(result, method: str) -> dict:

@@ -15,7 +15,7 @@ from typing import Any, Iterator
 import numpy as np
 
 #: Packages whose versions go into every result file.
-VERSIONED = ("galileo_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "optimistix", "numpy",
+VERSIONED = ("galileo_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "optimistix", "numpy", "orbax-checkpoint",
              "opencv-python-headless", "arviz", "flax", "optax")
 
 

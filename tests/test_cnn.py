@@ -1,0 +1,143 @@
+"""Amortised inference (issue 4): the networks, the input window, the jitted training step,
+checkpoints and saved models, and the shipped model against ground truth on simulations.
+
+The shipped model's accuracy on rendered (tracked) videos is tested in ``test_recovery.py``,
+next to grad and mh on the same videos.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from galileo_jax.effects import resolve_effects
+from galileo_jax.inference import cnn
+from galileo_jax.inference.problem import simulated_observation
+from galileo_jax.observation import Observation
+from galileo_jax.params import ParamSpace
+from galileo_jax.scene import load_scene
+from galileo_jax.simulate import PhysParams
+from galileo_jax.train import TrainConfig, make_train_step, setup, train
+
+SCENE = load_scene("scenes/ramp_20.yaml")
+
+
+def _n_weights(module) -> int:
+    return sum(int(np.prod(a.shape)) for a in jax.tree_util.tree_leaves(nnx.state(module, nnx.Param)))
+
+
+def test_seed_network_has_the_seeds_architecture():
+    """NOTES.md: Conv 6x(1,7) -> AvgPool -> Conv 16x(1,7) -> AvgPool -> Dense 64 -> 32 -> 4 has
+    13,252 weights on a (4, 60) profile; our default network outputs a mean and an SD per coordinate."""
+    seed = cnn.SeedCNN(4, 4, rngs=nnx.Rngs(0))
+    assert _n_weights(seed) == 13252
+    spec = cnn.CNNSpec.for_scene(SCENE, 30.0)
+    assert spec.names == ("k1", "k2", "phi", "dt_release")
+    out = cnn.build_network(spec)(jnp.zeros((3, spec.n_samples, spec.n_traces + 1)))
+    assert out.shape == (3, 2, 4)
+    assert bool(jnp.all(out[:, 1] >= cnn.MIN_SD))
+    with pytest.raises(ValueError, match="n_samples"):
+        cnn.CNNSpec.for_scene(SCENE, 30.0, n_samples=20)
+    with pytest.raises(ValueError, match="architecture"):
+        cnn.CNNSpec.for_scene(SCENE, 30.0, architecture="resnet")
+
+
+def test_network_input_aligns_the_release_and_masks_what_the_video_lacks():
+    spec = cnn.CNNSpec.for_scene(SCENE, 30.0, n_samples=32, release_offset=0.25)
+    n = 40
+    prof = np.tile(np.arange(n, dtype=float), (4, 1))  # sample k holds the value k
+    mask = np.ones(n, bool)
+    mask[30:] = False
+    obs = Observation(np.arange(n + 1) / 30.0, np.zeros((n + 1, 2, 2)), np.zeros((n + 1, 2, 2)), prof,
+                      np.full(4, 1e-3), mask, release_time=0.51, fps=30.0, moved=np.ones(2, bool))
+    x, shift = cnn.network_input(spec, obs)
+    c = round((0.51 - 0.25) * 30)  # the window starts at frame 8
+    assert x.shape == (32, 5)
+    assert np.allclose(x[:22, 0], np.arange(c, 30)) and np.all(x[:22, 4] == 1)
+    assert np.all(x[22:, 4] == 0) and np.all(x[22:, :4] == 0)  # masked samples are zero
+    # The tracker's release lies release_time - c / fps into the window; the shift refers the
+    # network's release (release_offset into the window) to it.
+    assert shift == pytest.approx(0.25 - (0.51 - c / 30.0))
+    early = obs._replace(release_time=0.1)  # the video starts 0.15 s after the window: padded, masked
+    x, _ = cnn.network_input(spec, early)
+    c = round((0.1 - 0.25) * 30)
+    assert np.all(x[:-c, 4] == 0) and np.allclose(x[-c:-c + 3, 0], [0, 1, 2])
+    with pytest.raises(cnn.CNNError, match="fps"):
+        cnn.network_input(spec, obs._replace(fps=60.0))
+
+
+def test_training_step_is_one_jitted_function_and_training_resumes(tmp_path):
+    """One jitted step draws parameters, simulates (MJX), adds noise and updates the network; a
+    second call does not retrace; training stops and resumes from its Orbax checkpoint; the
+    saved model predicts what the trained parameters predict."""
+    cfg = TrainConfig(n_samples=32, rollouts=2, views=2, steps=2, validation=2, log_every=1, checkpoint_every=1,
+                      width=4, hidden=8, noise={"position_sd": (1e-4, 1e-3), "min_samples": 8, "prefix": 2})
+    s, state = setup(cfg, SCENE)
+    step = make_train_step(s)
+    before = jax.tree_util.tree_map(np.array, state.params)
+    state, metrics = step(state)
+    state, metrics = step(state)
+    assert step._cache_size() == 1  # traced and compiled once
+    assert int(state.step) == 2 and np.isfinite(float(metrics["loss"]))
+    changed = jax.tree_util.tree_map(lambda a, b: not np.allclose(a, np.asarray(b)), before, state.params)
+    assert any(jax.tree_util.tree_leaves(changed))
+    # The simulated batch: masked samples are zero, valid lengths within [min_samples, L].
+    from galileo_jax.train import make_batch_fn
+
+    x, theta = jax.jit(make_batch_fn(s), static_argnums=1)(jax.random.PRNGKey(3), 2)
+    assert x.shape == (4, 32, 5) and theta.shape == (4, 4)
+    valid = np.asarray(x[..., -1]).sum(axis=1)
+    assert np.all(valid >= 8 - 2) and np.all(valid <= 32)
+    assert np.all(np.asarray(x[..., :-1])[np.asarray(x[..., -1]) == 0] == 0)
+    assert float(theta[:, 0].max()) < math.tan(SCENE.ramp.angle) - cfg.slide_margin  # object 1 slides
+
+    out = tmp_path / "model"
+    info = train(cfg, out=out, progress=False, scene=SCENE)
+    assert info["trained_steps"] == 2
+    rows = [json.loads(r) for r in (tmp_path / "model.train" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == [1, 2] and all(np.isfinite(r["val_loss"]) for r in rows)
+    info = train(cfg.model_copy(update={"steps": 3}), out=out, progress=False, scene=SCENE)  # resumes at 2
+    assert info["trained_steps"] == 3
+    rows = [json.loads(r) for r in (tmp_path / "model.train" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == [1, 2, 3]
+    model = cnn.load_model(out)
+    assert model.spec == s.spec and model.info["trained_steps"] == 3
+    xs = jnp.asarray(np.random.default_rng(0).normal(size=(2, 32, 5)), jnp.float32)
+    a = cnn.predict(model.spec, model.graphdef, model.params, xs)
+    assert np.all(np.isfinite(np.asarray(a.theta)))
+    with pytest.raises(cnn.CNNError, match="model.json"):
+        cnn.load_model(tmp_path)
+
+
+def test_shipped_model_against_ground_truth_on_simulations():
+    """The shipped 20 degree model on noisy simulated observations of random parameters
+    (clean of the tracker): k1 close, the truth inside most 90% intervals."""
+    model = cnn.find_model(SCENE, 30.0)
+    assert model.spec.architecture == "profile"
+    space = ParamSpace.from_scene(SCENE)
+    rng = np.random.default_rng(11)
+    errors, inside = [], []
+    for i in range(6):
+        k1 = rng.uniform(0.05, 0.3)
+        k2 = rng.uniform(0.1, 0.6)
+        m = rng.uniform(0.2, 1.0, 2)
+        obs = simulated_observation(SCENE, PhysParams(jnp.asarray(m), jnp.asarray([k1, k2])), fps=30.0,
+                                    duration=2.5, position_sd=5e-4, release_time=0.4, seed=i)
+        est = cnn.estimate(model, obs, space, jax.random.PRNGKey(i))
+        truth = {"k1": k1, "k2": k2, "phi": (m[0] - m[1]) / (m[0] + m[1]), "dt_release": 0.0}
+        errors.append([abs(est.theta[j] - truth[n]) for j, n in enumerate(est.names)])
+        inside.append([est.interval90[j, 0] <= truth[n] <= est.interval90[j, 1] for j, n in enumerate(est.names)])
+    errors, inside = np.array(errors), np.array(inside)
+    print("CNN |error| (k1, k2, phi, dt_release):\n", np.round(errors, 4))
+    assert np.median(errors[:, 0]) < 0.02
+    assert np.mean(inside) >= 0.6
+    with pytest.raises(cnn.CNNError, match="train one"):
+        cnn.find_model(load_scene("scenes/ramp_10.yaml"), 30.0)
+    with pytest.raises(cnn.CNNError, match="base model"):
+        cnn.estimate(model, obs, ParamSpace.from_scene(SCENE, resolve_effects("linear_drag")), jax.random.PRNGKey(0))
