@@ -9,7 +9,8 @@ draws them), tracks them, and on each runs:
 * ``grad --init cnn``: one start at the CNN's estimate, plus the best of a screen around it
   as wide as the CNN's 90% interval, at least +-5% of each range (``fit --init cnn``);
 * with ``--mh``: ``mh`` from the prior with the default 300 warm-up steps and with 100, and
-  ``mh --init cnn`` (chains started at the CNN's posterior draws, no annealing) with 100.
+  chains started at the CNN's posterior draws with 100 warm-up steps, with and without the
+  annealing (``fit --init cnn`` keeps it).
 
 Per run: |error| of k1, k2, phi against the renderer's truth, Levenberg-Marquardt steps (all
 starts together) or max R-hat, simulations run, and wall time (compilation excluded: every
@@ -93,8 +94,9 @@ def run_methods(video: Path, with_mh: bool) -> dict:
         idx = np.random.default_rng(1).choice(len(est.draws), size=cfg.mh.chains, replace=False)
         sd_z = float(np.clip(np.median(est.sd_z), 0.01, 0.5))
         for name, kw in (("mh (warm-up 300)", dict(n_warmup=300)), ("mh (warm-up 100)", dict(n_warmup=100)),
-                         ("mh --init cnn (warm-up 100)", dict(n_warmup=cfg.mh.warmup_cnn, init_theta=est.draws[idx],
-                                                              init_sd=sd_z, anneal=0.0))):
+                         ("mh --init cnn (warm-up 100)", dict(n_warmup=100, init_theta=est.draws[idx], init_sd=sd_z)),
+                         ("mh --init cnn, no annealing (warm-up 100)", dict(n_warmup=100, init_theta=est.draws[idx],
+                                                                            init_sd=sd_z, anneal=0.0))):
             t = time.perf_counter()
             res = run_mh(problem, jax.random.PRNGKey(2), n_chains=cfg.mh.chains, n_samples=200, progress=False, **kw)
             summ = summarize_mh(res, problem.space)["parameters"]

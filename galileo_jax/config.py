@@ -30,7 +30,7 @@ class MHConfig(_Strict):
 
     chains: int = Field(16, ge=2, le=1024)
     warmup: int = Field(300, ge=0)
-    warmup_cnn: int = Field(100, ge=0)
+    warmup_cnn: int = Field(300, ge=0)
     samples: int = Field(400, ge=10)
 
 

@@ -78,8 +78,9 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     grad runs one Levenberg-Marquardt start from it plus the best of a screen around it, as
     wide as the CNN's 90% interval and at least +-``cfg.cnn.local_screen`` of each range
     (:func:`cnn_screen`); mh starts its chains at draws from
-    the CNN's posterior, without annealing, for ``cfg.mh.warmup_cnn`` warm-up steps (unless
-    ``--warmup`` is given). The CNN's own estimate and time go into the diagnostics.
+    the CNN's posterior, with the usual annealing, for ``cfg.mh.warmup_cnn`` warm-up steps
+    (unless ``--warmup`` is given). Without annealing, chains started where the CNN is unsure
+    (k2, phi) stuck in wrong modes: R-hat 2.5 (benchmarks/results/cnn_videos_mh.md). The CNN's own estimate and time go into the diagnostics.
     """
     from galileo_jax.inference import summary
 
@@ -121,7 +122,7 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             idx = np.random.default_rng(1).choice(len(start.draws), size=cfg.mh.chains, replace=len(start.draws) < cfg.mh.chains)
             sd_z = float(np.clip(np.median(start.sd_z), 0.01, 0.5)) if np.any(start.sd_z > 0) else 0.1
             res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup_cnn, n_samples=cfg.mh.samples,
-                         init_theta=start.draws[idx], init_sd=sd_z, anneal=0.0, progress=progress)
+                         init_theta=start.draws[idx], init_sd=sd_z, progress=progress)
         params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
         flat = res.theta.reshape(-1, res.theta.shape[-1])
         idx = np.random.default_rng(0).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
