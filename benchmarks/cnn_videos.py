@@ -62,7 +62,7 @@ def run_methods(video: Path, with_mh: bool) -> dict:
     from galileo_jax.inference import Problem, fit_grad, run_mh, summarize_mh
     from galileo_jax.inference import cnn
     from galileo_jax.observe import observe
-    from galileo_jax.pipeline import cnn_screen
+    from galileo_jax.pipeline import grad_start_from_cnn, mh_start_from_cnn
     from galileo_jax.scene import load_scene
 
     cfg = FitConfig()
@@ -83,20 +83,17 @@ def run_methods(video: Path, with_mh: bool) -> dict:
                           "inside90": {n: bool(est.interval90[j, 0] <= truth[n] <= est.interval90[j, 1])
                                        for j, n in enumerate(est.names) if n in NAMES}}
     for name, kw in (("grad", dict(n_starts=cfg.grad.starts, n_screen=cfg.grad.screen)),
-                     ("grad --init cnn", dict(n_starts=1, n_screen=cfg.grad.screen, init=est.theta,
-                                              local_screen=cnn_screen(est, problem.space, cfg.cnn.local_screen)))):
+                     ("grad --init cnn", grad_start_from_cnn(est, problem.space, cfg))):
         t = time.perf_counter()
         res = fit_grad(problem, jax.random.PRNGKey(1), max_steps=cfg.grad.max_steps, **kw)
         out["runs"][name] = {"error": errors(res.theta), "time_s": time.perf_counter() - t,
                              "lm_steps": int(np.sum(res.starts_iterations)), "lm_steps_best": int(res.iterations),
                              "loglik": float(res.loglik)}
     if with_mh:
-        idx = np.random.default_rng(1).choice(len(est.draws), size=cfg.mh.chains, replace=False)
-        sd_z = float(np.clip(np.median(est.sd_z), 0.01, 0.5))
+        start = mh_start_from_cnn(est, cfg.mh.chains)
         for name, kw in (("mh (warm-up 300)", dict(n_warmup=300)), ("mh (warm-up 100)", dict(n_warmup=100)),
-                         ("mh --init cnn (warm-up 100)", dict(n_warmup=100, init_theta=est.draws[idx], init_sd=sd_z)),
-                         ("mh --init cnn, no annealing (warm-up 100)", dict(n_warmup=100, init_theta=est.draws[idx],
-                                                                            init_sd=sd_z, anneal=0.0))):
+                         ("mh --init cnn (warm-up 100)", dict(n_warmup=100, **start)),
+                         ("mh --init cnn, no annealing (warm-up 100)", dict(n_warmup=100, anneal=0.0, **start))):
             t = time.perf_counter()
             res = run_mh(problem, jax.random.PRNGKey(2), n_chains=cfg.mh.chains, n_samples=200, progress=False, **kw)
             summ = summarize_mh(res, problem.space)["parameters"]

@@ -69,7 +69,7 @@ def _settings(args) -> "FitConfig":  # noqa: F821
     if args.chains is not None:
         cfg.mh.chains = cfg.seed_mh.chains = args.chains
     if args.warmup is not None:
-        cfg.mh.warmup = args.warmup
+        cfg.mh.warmup = cfg.mh.warmup_cnn = args.warmup
     if args.samples is not None:
         cfg.mh.samples = args.samples
     if args.starts is not None:
@@ -78,8 +78,6 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         cfg.likelihood.kind = args.likelihood
     if args.cnn_model is not None:
         cfg.cnn.model = args.cnn_model
-    if args.warmup is not None:
-        cfg.mh.warmup_cnn = args.warmup
     if args.effects is not None:
         from galileo_jax.effects import resolve_effects
 

@@ -71,7 +71,8 @@ def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
     return params, summary_dict["diagnostics"]
 
 
-def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool, init: str = "prior"):
+def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool, init: str = "prior",
+                        cnn_model=None):
     """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None).
 
     ``init="cnn"``: grad and mh start from the trained CNN's estimate (:func:`cnn_estimate`):
@@ -80,7 +81,9 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     (:func:`cnn_screen`); mh starts its chains at draws from
     the CNN's posterior, with the usual annealing, for ``cfg.mh.warmup_cnn`` warm-up steps
     (unless ``--warmup`` is given). Without annealing, chains started where the CNN is unsure
-    (k2, phi) stuck in wrong modes: R-hat 2.5 (benchmarks/results/cnn_videos_mh.md). The CNN's own estimate and time go into the diagnostics.
+    (k2, phi) stuck in wrong modes: R-hat 2.5 (benchmarks/results/cnn_videos_mh.md). The CNN's
+    own estimate and time go into the diagnostics. ``cnn_model``: the trained model, if
+    already loaded (else found for the scene).
     """
     from galileo_jax.inference import summary
 
@@ -91,7 +94,7 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     if init == "cnn" or method == "cnn":
         if method == "seed":
             raise GalileoError("--init cnn works with --method grad or mh; the seed's sampler starts from the prior")
-        start = cnn_estimate(problem, cfg, jax.random.fold_in(key, 7))
+        start = cnn_estimate(problem, cfg, jax.random.fold_in(key, 7), cnn_model)
         if method == "cnn":
             loglik = float(problem.log_likelihood(problem.space.to_unconstrained(jnp.asarray(start.theta))[None])[0])
             result = summary.summarize_cnn(start, problem.space, loglik)
@@ -106,8 +109,7 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
                            jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
         else:
-            res = fit_grad(problem, k_run, n_starts=1, n_screen=cfg.grad.screen, init=start.theta,
-                           local_screen=cnn_screen(start, problem.space, cfg.cnn.local_screen),
+            res = fit_grad(problem, k_run, **grad_start_from_cnn(start, problem.space, cfg),
                            jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
         params, diag = _with_estimate(summary.summarize_grad(res, problem.space), "mean")
         draws = gauss_newton_draws(res, problem.space, k_sum, cfg.prediction.draws)
@@ -119,10 +121,8 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
                          progress=progress)
         else:
-            idx = np.random.default_rng(1).choice(len(start.draws), size=cfg.mh.chains, replace=len(start.draws) < cfg.mh.chains)
-            sd_z = float(np.clip(np.median(start.sd_z), 0.01, 0.5)) if np.any(start.sd_z > 0) else 0.1
             res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup_cnn, n_samples=cfg.mh.samples,
-                         init_theta=start.draws[idx], init_sd=sd_z, progress=progress)
+                         **mh_start_from_cnn(start, cfg.mh.chains), progress=progress)
         params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
         flat = res.theta.reshape(-1, res.theta.shape[-1])
         idx = np.random.default_rng(0).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
@@ -150,9 +150,25 @@ def cnn_screen(est, space, minimum: float) -> np.ndarray:
     return np.maximum(half / (hi - lo), minimum)
 
 
-def cnn_estimate(problem: Problem, cfg: FitConfig, key):
+def grad_start_from_cnn(est, space, cfg: FitConfig) -> dict:
+    """``fit_grad`` options of ``fit --init cnn``: one start at the CNN's estimate plus the best
+    of a ``cfg.grad.screen``-point screen around it (:func:`cnn_screen`)."""
+    return dict(n_starts=1, n_screen=cfg.grad.screen, init=est.theta,
+                local_screen=cnn_screen(est, space, cfg.cnn.local_screen))
+
+
+def mh_start_from_cnn(est, n_chains: int) -> dict:
+    """``run_mh`` options of ``fit --init cnn``: the chains start at ``n_chains`` of the CNN's
+    draws (fixed choice), with the initial proposal SD the median of the CNN's SDs in z (clipped
+    to [0.01, 0.5]; 0.1 for a network without uncertainty)."""
+    idx = np.random.default_rng(1).choice(len(est.draws), size=n_chains, replace=len(est.draws) < n_chains)
+    sd_z = float(np.clip(np.median(est.sd_z), 0.01, 0.5)) if np.any(est.sd_z > 0) else 0.1
+    return dict(init_theta=est.draws[idx], init_sd=sd_z)
+
+
+def cnn_estimate(problem: Problem, cfg: FitConfig, key, model=None):
     """The trained CNN's estimate for ``problem``'s video (:func:`galileo_jax.inference.cnn.estimate`),
-    with the model ``cfg.cnn.model`` or the shipped one matching the scene.
+    with ``model`` if given, else the model ``cfg.cnn.model`` or the shipped one matching the scene.
 
     Raises:
         CNNError: no model fits the scene, frame rate or the fit's coordinates (one line, with
@@ -160,7 +176,8 @@ def cnn_estimate(problem: Problem, cfg: FitConfig, key):
     """
     from galileo_jax.inference import cnn
 
-    model = cnn.find_model(problem.scene, problem.observation.fps, cfg.cnn.model)
+    if model is None:
+        model = cnn.find_model(problem.scene, problem.observation.fps, cfg.cnn.model)
     return cnn.estimate(model, problem.observation, problem.space, key)
 
 
@@ -239,10 +256,11 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     timings = {}
     t = time.perf_counter()
     clip = read_video(video, fps_override=fps or scene.video.fps)
+    cnn_model = None
     if method == "cnn" or init == "cnn":  # no trained model for this scene: say so before tracking
         from galileo_jax.inference.cnn import find_model
 
-        find_model(scene, clip.fps, cfg.cnn.model)
+        cnn_model = find_model(scene, clip.fps, cfg.cnn.model)
     obs = observe(clip, scene, progress=progress)
     timings["observe_s"] = time.perf_counter() - t
 
@@ -253,7 +271,8 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
-    parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress, init)
+    parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress, init,
+                                                                       cnn_model)
     timings["inference_s"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -155,15 +155,16 @@ def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
     return Setup(cfg, scene, spec, noise, engine, graphdef, tx), state
 
 
-def make_batch_fn(s: Setup) -> Callable:
+def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
     """Pure ``batch(key, n_rollouts) -> (x (n * views, L, T + 1), theta (n * views, d))``:
-    simulated, noisy network inputs and their true parameters."""
+    simulated, noisy network inputs and their true parameters (``views`` copies of each
+    rollout; default the config's)."""
     import jax
     import jax.numpy as jnp
 
     from galileo_jax.inference import cnn
 
-    views = s.cfg.views
+    views = s.cfg.views if views is None else views
 
     def batch(key, n):
         k_theta, k_sim = jax.random.split(key)
@@ -202,15 +203,7 @@ def validation_set(s: Setup, n: int, seed: int = 12345):
     """A fixed validation set ``(x, theta)`` of ``n`` simulated examples (one view each)."""
     import jax
 
-    from galileo_jax.inference import cnn
-
-    @jax.jit
-    def make(key):
-        k_theta, k_sim = jax.random.split(key)
-        theta = cnn.training_prior(s.engine.space, s.scene, k_theta, n, s.cfg.slide_margin)
-        return cnn.simulate_examples(s.engine, s.spec, s.noise, theta, k_sim, 1), theta
-
-    return make(jax.random.PRNGKey(seed))
+    return jax.jit(make_batch_fn(s, views=1), static_argnums=1)(jax.random.PRNGKey(seed), n)
 
 
 def make_eval_fn(s: Setup) -> Callable:

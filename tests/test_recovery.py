@@ -92,7 +92,7 @@ def test_cnn_and_grad_started_from_it_on_rendered_video(rendered):
     0.03 on at least 4 of 5; grad started from it (``fit --init cnn``: one start plus a screen
     as wide as the CNN's intervals) then gets k1, k2, phi within 0.02, 0.05, 0.1 on video 0."""
     from galileo_jax.inference import cnn
-    from galileo_jax.pipeline import cnn_screen
+    from galileo_jax.pipeline import grad_start_from_cnn
 
     errors = []
     for i, (scene, obs, truth) in enumerate(rendered):
@@ -102,8 +102,7 @@ def test_cnn_and_grad_started_from_it_on_rendered_video(rendered):
         d = dict(zip(est.names, est.theta))
         errors.append([abs(d[n] - truth[n]) for n in ("k1", "k2", "phi")])
         if i == 0:
-            res = fit_grad(problem, jax.random.PRNGKey(0), n_starts=1, n_screen=CFG.grad.screen, init=est.theta,
-                           local_screen=cnn_screen(est, problem.space, CFG.cnn.local_screen),
+            res = fit_grad(problem, jax.random.PRNGKey(0), **grad_start_from_cnn(est, problem.space, CFG),
                            max_steps=CFG.grad.max_steps)
             g = dict(zip(res.names, res.theta))
             # One start near the CNN is cheaper than grad's 4 global starts but lands in a

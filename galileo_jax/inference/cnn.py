@@ -236,8 +236,8 @@ class Prediction(NamedTuple):
     interval90: jax.Array
 
 
-def _space_bounds(spec: CNNSpec) -> tuple[jax.Array, jax.Array]:
-    return jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper, jnp.float32)
+def _space_bounds(spec: CNNSpec, dtype=jnp.float32) -> tuple[jax.Array, jax.Array]:
+    return jnp.asarray(spec.lower, dtype), jnp.asarray(spec.upper, dtype)
 
 
 def to_z(spec: CNNSpec, theta: jax.Array) -> jax.Array:
@@ -248,8 +248,9 @@ def to_z(spec: CNNSpec, theta: jax.Array) -> jax.Array:
 
 
 def from_z(spec: CNNSpec, z: jax.Array) -> jax.Array:
-    """theta = lo + (hi - lo) sigmoid(z)."""
-    lo, hi = _space_bounds(spec)
+    """theta = lo + (hi - lo) sigmoid(z), in z's dtype (float32 in training, float64 for a fit)."""
+    z = jnp.asarray(z)
+    lo, hi = _space_bounds(spec, z.dtype)
     return lo + (hi - lo) * jax.nn.sigmoid(z)
 
 
@@ -557,7 +558,7 @@ def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.
     pad = 1e-3 * (hi - lo)
 
     def to_theta(zz):
-        th = lo + (hi - lo) / (1.0 + np.exp(-zz))
+        th = np.array(from_z(spec, jnp.asarray(zz, jnp.float64)), np.float64)
         if "dt_release" in spec.names:
             th[..., spec.names.index("dt_release")] += shift
         return np.clip(th, lo + pad, hi - pad)
