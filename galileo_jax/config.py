@@ -76,15 +76,47 @@ class PredictionConfig(_Strict):
 
 class FitConfig(_Strict):
     """All settings of one ``fit`` run. ``effects``: physical effects (names from
-    :mod:`galileo_jax.effects`) added to the base model, on top of the scene's own."""
+    :mod:`galileo_jax.effects`) added to the base model, on top of the scene's own.
+    ``engine``: the simulator of the fit's rollouts, "mjx", "mujoco" (C MuJoCo's batched
+    ``mujoco.rollout``) or "auto" (:func:`resolve_engine`)."""
 
     effects: list[str] = Field(default_factory=list)
+    engine: Literal["auto", "mjx", "mujoco"] = "auto"
     mh: MHConfig = MHConfig()
     seed_mh: SeedMHConfig = SeedMHConfig()
     grad: GradConfig = GradConfig()
     cnn: CNNConfig = CNNConfig()
     likelihood: LikelihoodConfig = LikelihoodConfig()
     prediction: PredictionConfig = PredictionConfig()
+
+
+def resolve_engine(cfg: FitConfig, effects=()) -> str:
+    """The simulation engine a fit with these settings runs on.
+
+    "auto" picks C MuJoCo ("mujoco") on a CPU-only JAX, where it measured several times
+    faster than MJX for the ramp scene (``benchmarks/results/engines.md``), unless the fit
+    needs what only MJX has: derivatives (``grad.jacobian: ad``) or effects that act every
+    physics step (forces, velocity-dependent friction); on a GPU, MJX.
+
+    Args:
+        cfg: the settings.
+        effects: the fit's effects (:class:`~galileo_jax.effects.Effect`), the scene's own included.
+
+    Raises:
+        ConfigError: "mujoco" asked for together with ``grad.jacobian: ad``.
+    """
+    import jax
+
+    from galileo_jax.effects.runtime import has_step_hooks
+
+    if cfg.engine == "mujoco" and cfg.grad.jacobian == "ad":
+        raise ConfigError("grad.jacobian 'ad' needs derivatives, which the C MuJoCo engine has not; "
+                          "use --engine mjx or grad.jacobian fd")
+    if cfg.engine != "auto":
+        return cfg.engine
+    if jax.default_backend() != "cpu" or cfg.grad.jacobian == "ad" or has_step_hooks(effects):
+        return "mjx"
+    return "mujoco"
 
 
 def load_config(path: str | Path | None) -> FitConfig:

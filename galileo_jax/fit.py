@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--starts", type=int, help="grad: number of Levenberg-Marquardt starts")
     p.add_argument("--effects", help="physical effects to add to the base model, comma-separated "
                                      "(e.g. quadratic_drag,restitution; see python -m galileo_jax.diagnose --list)")
+    p.add_argument("--engine", choices=("auto", "mjx", "mujoco"),
+                   help="simulator of the rollouts: mjx (JAX, differentiable), mujoco (C MuJoCo's batched rollouts) "
+                        "or auto (default: mujoco on CPU unless the fit needs MJX, mjx on GPU)")
     p.add_argument("--likelihood", help="likelihood kind: gaussian_iid (default), gaussian_ma1, seed_gaussian, emd, rms")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
@@ -76,6 +79,8 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         cfg.grad.starts = args.starts
     if args.likelihood is not None:
         cfg.likelihood.kind = args.likelihood
+    if args.engine is not None:
+        cfg.engine = args.engine
     if args.cnn_model is not None:
         cfg.cnn.model = args.cnn_model
     if args.effects is not None:

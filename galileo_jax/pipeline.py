@@ -135,7 +135,10 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
                          or problem.scene.mass_scale_known()} for name, v in res.best.items()}
         diag = {"best_similarity": float(res.best_similarity), "acceptance": float(np.mean(res.accepted)),
                 "likelihood": res.likelihood, "time_s": float(res.time_s)}
-        theta = np.array([params[n]["estimate"] for n in problem.space.names])
+        # The seed samples masses and frictions only: the release-time and scale corrections stay
+        # at 0, the effects at their neutral values (what its rollouts simulated).
+        neutral = {p.name: p.neutral for e in problem.space.effects for p in e.params}
+        theta = np.array([params[n]["estimate"] if n in params else neutral.get(n, 0.0) for n in problem.space.names])
         return params, diag, theta, None
     raise GalileoError(f"unknown method {method!r}; choose grad, mh, cnn or seed")
 
@@ -231,6 +234,15 @@ def simulated_poses(problem: Problem, theta: np.ndarray) -> np.ndarray:
     return problem.poses(theta)
 
 
+def fit_engine(scene: Scene, cfg: FitConfig) -> str:
+    """The simulation engine of a fit of ``scene`` (:func:`~galileo_jax.config.resolve_engine`
+    with the scene's own effects and ``cfg.effects``)."""
+    from galileo_jax.config import resolve_engine
+    from galileo_jax.simulate import scene_effects
+
+    return resolve_engine(cfg, scene_effects(scene, cfg.effects))
+
+
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
             seed: int = 0, overlay: bool = True, progress: bool = True, init: str = "prior") -> FitReport:
     """Fit one video and write the results (see module docstring).
@@ -267,12 +279,13 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     t = time.perf_counter()
     try:
         problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
-                          effects=cfg.effects)
+                          effects=cfg.effects, engine=fit_engine(scene, cfg))
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
     parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress, init,
                                                                        cnn_model)
+    diagnostics["engine"] = problem.simulator_engine
     timings["inference_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -405,7 +418,8 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     timings["observe_s"] = time.perf_counter() - t
     t = time.perf_counter()
     try:
-        problems = [Problem(s, o, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects)
+        problems = [Problem(s, o, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects,
+                            engine=fit_engine(s, cfg))
                     for (_, s), o in zip(inputs, observations)]
         joint = JointProblem(problems, per_video)
     except ValueError as err:
@@ -427,6 +441,7 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
         idx = np.random.default_rng(seed).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
         theta_best, draws = np.asarray(res.best_theta), flat[idx]
     summ = summary.summarize_coordinates(res, method)
+    summ["diagnostics"]["engine"] = joint.simulator_engine
     timings["inference_s"] = time.perf_counter() - t
     t = time.perf_counter()
     simulated = [np.asarray(s) for s in joint.simulate(theta_best)]

@@ -38,6 +38,8 @@ with contextlib.redirect_stdout(io.StringIO()):
 from galileo_jax.effects import BodyState, EffectContext, check_applicable, resolve_effects
 from galileo_jax.effects.runtime import (effect_param_names, forces, frictions, has_step_hooks, initial_velocity,
                                          make_context, model_updates, neutral_values, split_values)
+from galileo_jax import simulate_c
+from galileo_jax.errors import GalileoError
 from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model
 from galileo_jax.scene import Scene
 
@@ -86,6 +88,7 @@ class Simulator:
     base: dict = field(repr=False)
     effects: tuple = ()
     ctx: EffectContext | None = None
+    engine: str = "mjx"
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -111,7 +114,7 @@ def physics_timestep(fps: float, substeps: int) -> float:
     return 1.0 / (fps * substeps)
 
 
-def make_simulator(scene: Scene, fps: float, effects=()) -> Simulator:
+def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx") -> Simulator:
     """Build the MuJoCo model of ``scene`` (with ``effects``) and move it to MJX.
 
     Args:
@@ -119,15 +122,22 @@ def make_simulator(scene: Scene, fps: float, effects=()) -> Simulator:
         fps: video frame rate in frames per second (sets the physics timestep).
         effects: :class:`~galileo_jax.effects.Effect` objects to simulate (the scene's own
             ``effects`` are NOT added here; see :func:`scene_effects`).
+        engine: "mjx" (rollouts in JAX, differentiable) or "mujoco" (C MuJoCo's batched
+            ``mujoco.rollout`` through a host callback: :mod:`galileo_jax.simulate_c`).
 
     Returns:
         A :class:`Simulator`.
 
     Raises:
-        GalileoError: an effect does not apply to the scene.
+        GalileoError: an effect does not apply to the scene, an unknown engine, or an effect
+            the C engine cannot simulate.
     """
     effects = tuple(effects)
     check_applicable(effects, scene)
+    if engine not in simulate_c.ENGINES:
+        raise GalileoError(f"unknown engine {engine!r}; choose one of {', '.join(simulate_c.ENGINES)}")
+    if engine == "mujoco":
+        simulate_c.check_supported(effects)
     dt = physics_timestep(fps, scene.simulation.substeps)
     mj_model, index = build_model(scene, timestep=dt, effects=effects)
     model = mjx.put_model(mj_model)
@@ -142,7 +152,7 @@ def make_simulator(scene: Scene, fps: float, effects=()) -> Simulator:
         "body_invweight0": np.asarray(mj_model.body_invweight0[bodies]),
         "dof_invweight0": np.stack([mj_model.dof_invweight0[d:d + 6] for d in index.dof]),
     }
-    return Simulator(scene, mj_model, model, data0, index, dt, base, effects, make_context(scene, index, dt))
+    return Simulator(scene, mj_model, model, data0, index, dt, base, effects, make_context(scene, index, dt), engine)
 
 
 def scene_effects(scene: Scene, extra=()) -> tuple:
@@ -197,6 +207,9 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
     Pure and jittable for fixed ``n_steps``; ``vmap`` over ``params`` for a batch. The
     simulator's effects act as their hooks say (:mod:`galileo_jax.effects`): model fields
     once, release velocities at t = 0, frictions and forces (``xfrc_applied``) every step.
+    On the C engine (``sim.engine == "mujoco"``) the rollout is a host callback
+    (:func:`galileo_jax.simulate_c.rollout_poses`): jittable and vmappable (a vmapped batch is
+    one ``mujoco.rollout``), not differentiable.
 
     Args:
         sim: the simulator.
@@ -206,6 +219,8 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
     Returns:
         :class:`Trajectory` with ``pose`` of shape (n_steps + 1, n_objects, 3).
     """
+    if sim.engine == "mujoco":
+        return Trajectory(simulate_c.rollout_poses(sim, params.mass, params.friction, params.effects, n_steps), sim.dt)
     model = apply_params(sim, params)
     data0 = sim.data0
     if sim.effects:

@@ -1,7 +1,8 @@
 """Inference against ground truth on rendered video (issue 2, "What it must show" 3).
 
 Five videos with random parameters are rendered with MuJoCo (C engine, image noise, a hand
-in half of them), tracked with automatic object finding, and fitted through MJX rollouts:
+in half of them), tracked with automatic object finding, and fitted as ``fit`` fits them (on
+the engine ``fit`` picks: C MuJoCo's batched rollouts on a CPU, MJX on a GPU):
 
 * ``grad`` must get k1 within 0.02, k2 within 0.03 and phi within 0.1 on at least 4 of 5;
 * ``mh``'s 90% interval must contain the true k1 and phi.
@@ -21,7 +22,7 @@ import jax
 import numpy as np
 import pytest
 
-from galileo_jax.config import FitConfig
+from galileo_jax.config import FitConfig, resolve_engine
 from galileo_jax.inference import Problem, fit_grad, run_mh, summarize_mh
 from galileo_jax.observe import observe
 from galileo_jax.scene import load_scene
@@ -60,7 +61,8 @@ def rendered(tmp_path_factory):
 
 
 def _problem(scene, obs) -> Problem:
-    return Problem(scene, obs, likelihood=CFG.likelihood.kind, sd_model=CFG.likelihood.sd_model)
+    return Problem(scene, obs, likelihood=CFG.likelihood.kind, sd_model=CFG.likelihood.sd_model,
+                   engine=resolve_engine(CFG))  # the engine fit runs on: C MuJoCo on a CPU
 
 
 def test_grad_recovers_parameters_from_rendered_video(rendered):

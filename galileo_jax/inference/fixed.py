@@ -95,6 +95,7 @@ class FixedProblem(BatchedAPI):
         self.static_key = ("fixed", parent.static_key, len(free))
         self.max_batch = parent.max_batch
         self.likelihood = parent.likelihood
+        self.simulator_engine = parent.simulator_engine
         parent_ll = parent.loglik_fn
 
         def loglik(z, data):

@@ -248,6 +248,9 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         K. Levenberg (1944), Quart. Appl. Math. 2:164-168; D. W. Marquardt (1963),
         J. SIAM 11:431-441.
     """
+    if jacobian == "ad" and getattr(problem, "simulator_engine", "mjx") != "mjx":
+        raise ValueError(f"jacobian 'ad' needs the MJX engine (the {problem.simulator_engine} engine has no "
+                         "derivatives); use jacobian 'fd' or engine 'mjx'")
     if fixed:
         from galileo_jax.inference.fixed import FixedProblem
 

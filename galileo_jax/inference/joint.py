@@ -209,6 +209,8 @@ class JointProblem(BatchedAPI):
         self.problems = problems
         self.space = JointSpace.from_spaces([p.space for p in problems], per_video)
         self.likelihood = JointLikelihood(tuple(p.likelihood for p in problems))
+        #: "mujoco" when any video's rollouts run on the C engine (no derivatives), else "mjx".
+        self.simulator_engine = "mujoco" if any(p.simulator_engine == "mujoco" for p in problems) else "mjx"
         self.max_batch = min(p.max_batch for p in problems)
         self.data = tuple(p.data for p in problems)
         self.static_key = ("joint", tuple(p.static_key for p in problems), self.space.names)

@@ -235,16 +235,19 @@ def _blocks(seconds: float, fps: float) -> float:
     return PAD_SAMPLES * math.ceil(frames / PAD_SAMPLES) / fps
 
 
-def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_batch: int) -> Engine:
+def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_batch: int,
+               engine: str = "mjx") -> Engine:
     """The shared :class:`Engine` for these settings (built once per process and key); its
-    rollouts cover ``seconds`` after the release plus the release-time window."""
+    rollouts cover ``seconds`` after the release plus the release-time window, on the
+    simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.simulate.make_simulator`)."""
     early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
     length = _blocks(seconds + early, fps)
-    key = (scene_key(scene), float(scene.camera.scale_tolerance), float(fps), tuple(effects), length, int(max_batch))
+    key = (scene_key(scene), float(scene.camera.scale_tolerance), float(fps), tuple(effects), length, int(max_batch),
+           engine)
     if key in _ENGINES:
         _ENGINES.move_to_end(key)
         return _ENGINES[key]
-    sim = make_simulator(scene, float(fps), effects)
+    sim = make_simulator(scene, float(fps), effects, engine)
     engine = Engine(key, sim, ParamSpace.from_scene(scene, effects), steps_needed(sim, length), int(max_batch))
     _ENGINES[key] = engine
     while len(_ENGINES) > _ENGINES_SIZE:
@@ -317,10 +320,13 @@ class Problem(BatchedAPI):
         max_batch: largest vmapped batch of rollouts; larger batches are chunked.
         effects: extra physical effects (names or :class:`~galileo_jax.effects.Effect`), added
             to the scene's own ``effects``; their parameters follow the base ones in theta.
+        engine: simulation engine, "mjx" (default; differentiable) or "mujoco" (C MuJoCo's
+            batched rollouts, faster on CPU; finite-difference Jacobians only).
 
     Raises:
         ValueError: the observation does not match the scene (number of objects), or any
             error of :func:`~galileo_jax.likelihood.make_likelihood` / ``ParamSpace.from_scene``.
+        GalileoError: an unknown engine, or effects the C engine cannot simulate.
 
     Interface shared with :class:`~galileo_jax.inference.joint.JointProblem` and
     :class:`~galileo_jax.inference.fixed.FixedProblem` (what the optimisers and samplers use):
@@ -330,7 +336,8 @@ class Problem(BatchedAPI):
     """
 
     def __init__(self, scene: Scene, observation: Observation, likelihood: str = DEFAULT_KIND,
-                 sd_model: float = DEFAULT_SD_MODEL, max_batch: int = DEFAULT_MAX_BATCH, effects=()):
+                 sd_model: float = DEFAULT_SD_MODEL, max_batch: int = DEFAULT_MAX_BATCH, effects=(),
+                 engine: str = "mjx"):
         n_traces = 2 * scene.n_objects
         if np.shape(observation.profile)[0] != n_traces:
             raise ValueError(f"observation has {np.shape(observation.profile)[0]} velocity traces, "
@@ -345,7 +352,7 @@ class Problem(BatchedAPI):
         n_pad = PAD_SAMPLES * math.ceil(n / PAD_SAMPLES)
         lik = make_likelihood(observation, likelihood, sd_model, n_samples=n_pad)
         ft = padded_frame_times(observation.frame_times, fps, n_pad)
-        self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch)
+        self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch, engine)
         release = float(observation.release_time)
         self.data = ProblemData(jnp.asarray(ft), jnp.asarray(release), lik)
         self.n_samples = n
@@ -366,6 +373,11 @@ class Problem(BatchedAPI):
     @property
     def static_key(self) -> tuple:
         return self.engine.key
+
+    @property
+    def simulator_engine(self) -> str:
+        """The simulation engine of the rollouts: "mjx" or "mujoco"."""
+        return self.engine.sim.engine
 
     @property
     def likelihood(self) -> Likelihood:

@@ -1,0 +1,179 @@
+"""Rollouts per second of the ramp scene: MJX ``jit(vmap(scan))`` vs C MuJoCo's batched ``mujoco.rollout``.
+
+Issue 5, benchmark 2. Same machine, same run, same model (``scenes/ramp_20.yaml``, two boxes,
+dt = 1/240 s, ``--seconds`` of simulated time per rollout), same random parameters (masses
+in (0.1, 1) kg, k1 in (0.05, 0.3), k2 in (0.05, 0.6)). Per batch size B:
+
+* ``mjx``: ``jax.jit(jax.vmap(rollout))`` of :func:`galileo_jax.simulate.rollout`, the program
+  every fit runs (float64), timed after its compilation;
+* ``mujoco``: :func:`galileo_jax.simulate_c.rollout_poses_host`: B model copies with their
+  parameters, one ``mujoco.rollout`` over a thread pool of all cores (the C engine as ``fit
+  --engine mujoco`` runs it, model copies included), and ``mujoco (in jit)``: the same through
+  its ``jax.pure_callback`` inside ``jit(vmap)``, as the samplers call it.
+
+Reported: rollouts per second (best of ``--repeats``) and the ratio C / MJX. Compile time of
+the MJX program: cold (empty persistent cache) and warm (JAX's persistent compilation cache
+filled by the cold run), each measured in a fresh subprocess. Writes
+``benchmarks/results/engines.{md,json}``.
+
+    python benchmarks/engines.py [--batches 1,4,16,64,256,1024,4096] [--seconds 2.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def _setup(seconds: float):
+    from galileo_jax.scene import load_scene
+    from galileo_jax.simulate import make_simulator, steps_needed
+
+    sim = make_simulator(load_scene(ROOT / "scenes" / "ramp_20.yaml"), 30.0)
+    return sim, steps_needed(sim, seconds)
+
+
+def _params(batch: int, seed: int = 0):
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    mass = rng.uniform(0.1, 1.0, (batch, 2))
+    friction = np.c_[rng.uniform(0.05, 0.3, batch), rng.uniform(0.05, 0.6, batch)]
+    return mass, friction
+
+
+def compile_time(seconds: float, batch: int) -> dict:
+    """In this process: time to the first result of the MJX batch program, and a second call."""
+    import jax
+
+    from galileo_jax.jaxcache import enable_compilation_cache
+    from galileo_jax.simulate import PhysParams, rollout
+
+    enable_compilation_cache()
+    t0 = time.perf_counter()
+    sim, n = _setup(seconds)
+    build = time.perf_counter() - t0
+    f = jax.jit(jax.vmap(lambda m, k: rollout(sim, PhysParams(m, k), n).pose))
+    mass, friction = _params(batch)
+    t = time.perf_counter()
+    f(mass, friction).block_until_ready()
+    first = time.perf_counter() - t
+    t = time.perf_counter()
+    f(mass, friction).block_until_ready()
+    run = time.perf_counter() - t
+    return {"build_s": build, "first_call_s": first, "run_s": run, "compile_s": first - run}
+
+
+def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
+    import jax
+    import numpy as np
+
+    from galileo_jax.simulate import PhysParams, rollout
+    from galileo_jax.simulate_c import rollout_poses, rollout_poses_host
+
+    sim, n = _setup(seconds)
+    mjx_fn = jax.jit(jax.vmap(lambda m, k: rollout(sim, PhysParams(m, k), n).pose))
+    cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, None, n)))
+    rows = []
+    for b in batches:
+        mass, friction = _params(b)
+        row = {"batch": b, "n_steps": n}
+        for name, fn in (("mjx", lambda: mjx_fn(mass, friction).block_until_ready()),
+                         ("mujoco", lambda: rollout_poses_host(sim, mass, friction, None, n)),
+                         ("mujoco_jit", lambda: cb_fn(mass, friction).block_until_ready())):
+            fn()  # compile / warm
+            best = np.inf
+            reps = repeats if b < 1024 or name != "mjx" else 1
+            for _ in range(reps):
+                t = time.perf_counter()
+                out = fn()
+                best = min(best, time.perf_counter() - t)
+            row[f"{name}_rollouts_per_s"] = b / best
+            if name == "mjx":
+                ref = np.asarray(out)
+            elif name == "mujoco":
+                diff = np.abs(np.asarray(out)[..., :2] - ref[..., :2])
+                row["max_position_diff_m"] = float(np.max(diff))
+                row["median_position_diff_m"] = float(np.median(np.max(diff, axis=(1, 2, 3))))
+        row["ratio_mujoco_over_mjx"] = row["mujoco_rollouts_per_s"] / row["mjx_rollouts_per_s"]
+        rows.append(row)
+        print(f"B={b:5d}: mjx {row['mjx_rollouts_per_s']:9.1f}/s, mujoco {row['mujoco_rollouts_per_s']:9.1f}/s "
+              f"(in jit {row['mujoco_jit_rollouts_per_s']:9.1f}/s), ratio {row['ratio_mujoco_over_mjx']:.1f}x, "
+              f"max |dx| {row['max_position_diff_m']:.2e} m", flush=True)
+    return rows
+
+
+def write_tables(result: dict) -> None:
+    from galileo_jax.report.results import atomic_path, write_json
+
+    write_json(RESULTS / "engines.json", result)
+    c = result["compile"]
+    lines = ["# Engines: MJX jit(vmap(scan)) vs C MuJoCo mujoco.rollout (ramp_20 scene)", "",
+             f"machine: {result['machine']}", "",
+             f"Command: `{result['command']}`. {result['seconds']} s of simulated time per rollout "
+             f"({result['rows'][0]['n_steps']} steps at dt = 1/240 s), float64. Rollouts per second, best of "
+             f"{result['repeats']} (1 for MJX at B >= 1024); C MuJoCo timings include the per-rollout model copies "
+             "and mj_setConst. 'in jit': the C engine through jax.pure_callback inside jit(vmap), as the samplers "
+             "call it. Position diff: largest |x, z| difference of the two engines' trajectories (same parameters).",
+             "", "| batch | MJX (rollouts/s) | C MuJoCo | C MuJoCo in jit | C / MJX | max position diff (m) | "
+                 "median of per-rollout max (m) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        lines.append(f"| {r['batch']} | {r['mjx_rollouts_per_s']:.1f} | {r['mujoco_rollouts_per_s']:.1f} | "
+                     f"{r['mujoco_jit_rollouts_per_s']:.1f} | {r['ratio_mujoco_over_mjx']:.1f} | "
+                     f"{r['max_position_diff_m']:.1e} | {r['median_position_diff_m']:.1e} |")
+    lines += ["", f"MJX compile time of the batch-{c['batch']} program (fresh process each): cold cache "
+                  f"{c['cold']['compile_s']:.1f} s, with the persistent cache {c['warm']['compile_s']:.1f} s "
+                  f"(scene build {c['cold']['build_s']:.1f} / {c['warm']['build_s']:.1f} s). "
+                  "The C engine compiles nothing."]
+    with atomic_path(RESULTS / "engines.md") as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batches", default="1,4,16,64,256,1024,4096")
+    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per rollout")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--compile-batch", type=int, default=16)
+    ap.add_argument("--compile-only", action="store_true", help=argparse.SUPPRESS)  # the subprocess' mode
+    args = ap.parse_args(argv)
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    if args.compile_only:
+        print(json.dumps(compile_time(args.seconds, args.compile_batch)))
+        return 0
+    comp = {"batch": args.compile_batch}
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, GALILEO_JAX_CACHE=cache)
+        for label in ("cold", "warm"):
+            out = subprocess.run([sys.executable, __file__, "--compile-only", "--seconds", str(args.seconds),
+                                  "--compile-batch", str(args.compile_batch)], env=env, check=True,
+                                 capture_output=True, text=True).stdout
+            comp[label] = json.loads(out.strip().splitlines()[-1])
+            print(f"compile ({label} cache): {comp[label]['compile_s']:.1f} s", flush=True)
+    from galileo_jax.jaxcache import enable_compilation_cache
+
+    enable_compilation_cache()
+    rows = measure([int(b) for b in args.batches.split(",")], args.seconds, args.repeats)
+    machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}"
+    import jax
+    import mujoco
+
+    write_tables({"machine": machine, "jax": jax.__version__, "mujoco": mujoco.__version__,
+                  "command": "python benchmarks/engines.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+                  "seconds": args.seconds, "repeats": args.repeats, "compile": comp, "rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,94 @@
+"""The C MuJoCo engine (``mujoco.rollout`` through a host callback) against the MJX engine.
+
+Same scene, same parameters: the velocity profiles agree to 1e-5 m/s while object 1 slides
+alone (both integrate the same model; the closed form of the slide is checked on MJX in
+test_physics), and to a few mm/s RMS after the impact, where contact resolution differs
+slightly between the two solvers (per-rollout RMS difference, 2 s at 30 fps: median 0.0006 m/s,
+max 0.027 m/s over 64 draws of one seed; median 0.0043 m/s, max 0.018 m/s over the 16 here;
+the tracker's noise is 0.003-0.008 m/s; benchmarks/results/engines.md gives positions).
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from galileo_jax.config import ConfigError, FitConfig, resolve_engine
+from galileo_jax.effects import resolve_effects
+from galileo_jax.errors import GalileoError
+from galileo_jax.inference.grad import fit_grad
+from galileo_jax.inference.problem import Problem, simulated_observation
+from galileo_jax.scene import load_scene
+from galileo_jax.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
+
+SCENE = load_scene("scenes/ramp_20.yaml")
+FRAMES = jnp.arange(61) / 30.0
+
+
+def _profiles(engine: str, mass: np.ndarray, friction: np.ndarray) -> np.ndarray:
+    sim = make_simulator(SCENE, 30.0, (), engine)
+    n = steps_needed(sim, 2.0)
+    f = jax.jit(jax.vmap(lambda m, k: velocity_profile(sim, PhysParams(m, k), FRAMES, 0.0, n)))
+    return np.asarray(f(mass, friction))
+
+
+def test_engines_give_the_same_profiles():
+    rng = np.random.default_rng(3)
+    b = 16
+    mass = rng.uniform(0.1, 1.0, (b, 2))
+    friction = np.c_[rng.uniform(0.02, 0.3, b), rng.uniform(0.05, 0.8, b)]
+    mjx_v, c_v = _profiles("mjx", mass, friction), _profiles("mujoco", mass, friction)
+    assert mjx_v.shape == c_v.shape == (b, 4, 60)
+    assert np.all(np.isfinite(c_v))
+    # object 1 sliding alone (the first 10 frames, before any impact): the same integration
+    assert np.max(np.abs(mjx_v[:, 0, :10] - c_v[:, 0, :10])) < 1e-5
+    assert np.max(np.abs(c_v[:, 0, 5:10])) > 0.05  # ... and it does slide
+    rms = np.sqrt(np.mean((mjx_v - c_v) ** 2, axis=(1, 2)))
+    assert np.median(rms) < 0.01 and np.max(rms) < 0.05, rms
+
+
+def test_c_engine_inside_jit_and_vmap_matches_host_batches():
+    """The callback sees one batch per vmapped call, also nested (LM starts x FD points)."""
+    truth = PhysParams(jnp.array([0.6, 0.3]), jnp.array([0.2, 0.25]))
+    obs = simulated_observation(SCENE, truth, duration=1.5, position_sd=1e-3, seed=0, release_time=0.2)
+    c, m = Problem(SCENE, obs, engine="mujoco"), Problem(SCENE, obs)
+    assert (c.simulator_engine, m.simulator_engine) == ("mujoco", "mjx")
+    z = jax.random.normal(jax.random.PRNGKey(0), (20, c.dim)) * 0.5
+    ll_c, ll_m = np.asarray(c.log_likelihood(z)), np.asarray(m.log_likelihood(z))
+    assert np.all(np.isfinite(ll_c))
+    assert np.median(np.abs(ll_c - ll_m) / np.abs(ll_m)) < 0.02
+    res = fit_grad(c, jax.random.PRNGKey(1), n_starts=2, n_screen=32, max_steps=15)
+    est = dict(zip(c.names, np.asarray(res.theta)))
+    assert abs(est["k1"] - 0.2) < 0.01 and abs(est["k2"] - 0.25) < 0.05
+    with pytest.raises(ValueError, match="MJX engine"):
+        fit_grad(c, jax.random.PRNGKey(1), n_starts=1, n_screen=4, max_steps=2, jacobian="ad")
+
+
+def test_engine_choice():
+    cpu = jax.default_backend() == "cpu"
+    assert resolve_engine(FitConfig()) == ("mujoco" if cpu else "mjx")
+    assert resolve_engine(FitConfig(engine="mjx")) == "mjx"
+    assert resolve_engine(FitConfig.model_validate({"grad": {"jacobian": "ad"}})) == "mjx"
+    drag = resolve_effects("quadratic_drag")  # a force every step: only MJX has it
+    assert resolve_engine(FitConfig(), drag) == "mjx"
+    with pytest.raises(ConfigError, match="derivatives"):
+        resolve_engine(FitConfig.model_validate({"engine": "mujoco", "grad": {"jacobian": "ad"}}))
+    with pytest.raises(GalileoError, match="--engine mjx"):
+        make_simulator(SCENE, 30.0, drag, "mujoco")
+    with pytest.raises(GalileoError, match="unknown engine"):
+        make_simulator(SCENE, 30.0, (), "bullet")
+
+
+def test_c_engine_with_effects_set_once():
+    """Effects that change the model or the release velocity (not every step) run on C MuJoCo too."""
+    effects = resolve_effects("restitution,initial_push")
+    out = {}
+    for engine in ("mjx", "mujoco"):
+        sim = make_simulator(SCENE, 30.0, effects, engine)
+        assert sim.effect_names == ("restitution", "v0")
+        n = steps_needed(sim, 2.0)
+        params = PhysParams(jnp.array([0.6, 0.3]), jnp.array([0.2, 0.25]), jnp.array([0.8, 0.4]))
+        out[engine] = np.asarray(jax.jit(lambda p: velocity_profile(sim, p, FRAMES, 0.0, n))(params))
+    assert abs(out["mujoco"][0, 0] - 0.4 * np.cos(SCENE.ramp.angle)) < 0.03  # released at v0 = 0.4 m/s downhill
+    assert np.max(np.abs(out["mjx"][0, :10] - out["mujoco"][0, :10])) < 1e-5
+    assert np.sqrt(np.mean((out["mjx"] - out["mujoco"]) ** 2)) < 0.01
