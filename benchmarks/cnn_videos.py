@@ -38,20 +38,30 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 NAMES = ("k1", "k2", "phi")
+#: The benchmarks' rendered videos (cnn_videos, samplers, sweep_rendered): 2.5 s at 30 fps,
+#: 480x270, pixel noise SD 2, released after 9 frames.
+VIDEO = dict(fps=30.0, duration=2.5, width=480, height=270, noise_sd=2.0, rest_frames=9)
+
+
+def render_informative(scene, path: Path, rng: np.random.Generator, noise_seed: int) -> None:
+    """Render ``path`` (with its scene and truth) of ``scene`` at parameters drawn from ``rng``
+    as ``synth --random`` draws them (object 1 slides and reaches object 2), :data:`VIDEO` settings."""
+    from galileo_jax.synth import draw_informative_params, render_video
+
+    v = VIDEO
+    params = draw_informative_params(scene, rng, (), fps=v["fps"], rest_frames=v["rest_frames"],
+                                     n_frames=int(round(v["fps"] * v["duration"])))
+    render_video(scene, params, path, progress=False, seed=noise_seed, **v)
 
 
 def render(i: int, work: Path, seed: int) -> Path:
     from galileo_jax.scene import load_scene
-    from galileo_jax.synth import draw_informative_params, render_video
 
     video = work / f"video_{i}.mp4"
     if video.exists() and video.with_suffix(".truth.json").exists():
         return video
-    scene = load_scene(ROOT / "scenes" / "ramp_20.yaml")
-    rng = np.random.default_rng(seed * 1000 + i)
-    params = draw_informative_params(scene, rng, (), fps=30.0, rest_frames=9, n_frames=75)
-    render_video(scene, params, video, fps=30.0, duration=2.5, width=480, height=270, noise_sd=2.0, seed=seed + i,
-                 progress=False)
+    render_informative(load_scene(ROOT / "scenes" / "ramp_20.yaml"), video, np.random.default_rng(seed * 1000 + i),
+                       seed + i)
     return video
 
 

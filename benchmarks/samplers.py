@@ -72,7 +72,7 @@ import numpy as np  # noqa: E402
 ROOT, RESULTS, NAMES = cnn_videos.ROOT, cnn_videos.RESULTS, cnn_videos.NAMES
 SCENES = ("ramp_10", "ramp_20")
 #: Rendered videos: as benchmarks/cnn_videos.py renders them.
-VIDEO = dict(fps=30.0, duration=2.5, width=480, height=270, noise_sd=2.0, rest_frames=9)
+VIDEO = cnn_videos.VIDEO
 #: Index of the warm-up (compilation) video of each scene.
 WARMUP_INDEX = 10_000
 #: The dissertation's profile errors (NOTES.md; dissertation 4.3, averaged over 30 runs).
@@ -131,18 +131,14 @@ def problem_for(scene, obs, cfg):
 def scene_video(scene_name: str, i: int, work: Path, seed: int) -> Path:
     """Render (once) video ``i`` of ``scenes/<scene_name>.yaml`` into ``work/<scene_name>/``."""
     from galileo_jax.scene import load_scene
-    from galileo_jax.synth import draw_informative_params, render_video
 
     path = work / scene_name / f"video_{i}.mp4"
     if path.exists() and path.with_suffix(".truth.json").exists():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
-    scene = load_scene(ROOT / "scenes" / f"{scene_name}.yaml")
     stream = np.random.SeedSequence([seed, SCENES.index(scene_name), i])
-    v = VIDEO
-    params = draw_informative_params(scene, np.random.default_rng(stream), (), fps=v["fps"],
-                                     rest_frames=v["rest_frames"], n_frames=int(round(v["fps"] * v["duration"])))
-    render_video(scene, params, path, progress=False, seed=int(stream.generate_state(1)[0] % 2**31), **v)
+    cnn_videos.render_informative(load_scene(ROOT / "scenes" / f"{scene_name}.yaml"), path,
+                                  np.random.default_rng(stream), int(stream.generate_state(1)[0] % 2**31))
     return path
 
 

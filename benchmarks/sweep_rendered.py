@@ -1,8 +1,8 @@
 """A sweep over rendered videos in the Physics 101 layout: one command, one config, one table.
 
 Issue 5, "What it must show" 2. Renders ``--videos`` videos per ramp setting (10 and 20
-degrees; C MuJoCo renderer, 480x270, 2.5 s at 30 fps, pixel noise, random informative
-parameters as ``synth --random`` draws them) into
+degrees; as ``benchmarks/cnn_videos.py`` renders them: C MuJoCo renderer, 480x270, 2.5 s at
+30 fps, pixel noise, random informative parameters as ``synth --random`` draws them) into
 ``<dataset>/scenarios/ramp/<setting>/box/t<i>/Camera_1.mp4``, each with its calibrated scene
 ``Camera_1.yaml`` and ground truth ``Camera_1.truth.json`` beside it (the sweep reads the scene
 from the video's folder), then runs ONE sweep with ``configs/sweep.yaml``:
@@ -36,8 +36,9 @@ SETTINGS = {"10": ROOT / "scenes" / "ramp_10.yaml", "20": ROOT / "scenes" / "ram
 
 def render_dataset(dataset: Path, n: int, seed: int) -> list[Path]:
     """Render (once) n videos per setting into the Physics 101 layout; returns their paths."""
+    from cnn_videos import render_informative
+
     from galileo_jax.scene import load_scene
-    from galileo_jax.synth import draw_informative_params, render_video
 
     out = []
     for s, (setting, scene_path) in enumerate(SETTINGS.items()):
@@ -48,10 +49,7 @@ def render_dataset(dataset: Path, n: int, seed: int) -> list[Path]:
             if video.exists() and video.with_suffix(".truth.json").exists():
                 continue
             video.parent.mkdir(parents=True, exist_ok=True)
-            rng = np.random.default_rng([seed, s, i])
-            params = draw_informative_params(scene, rng, (), fps=30.0, rest_frames=9, n_frames=75)
-            render_video(scene, params, video, fps=30.0, duration=2.5, width=480, height=270, noise_sd=2.0,
-                         seed=seed * 100 + s * 10 + i, progress=False)
+            render_informative(scene, video, np.random.default_rng([seed, s, i]), seed * 100 + s * 10 + i)
             print(f"rendered {video.relative_to(dataset)}", flush=True)
     return out
 

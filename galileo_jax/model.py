@@ -61,6 +61,22 @@ def _rot_y(angle: float) -> list[float]:
     return [math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]
 
 
+def object_poses(index: ModelIndex, qpos, xp=np):
+    """Each object's centre x, z (m) and pitch about the world y axis (rad) from ``qpos``.
+
+    Args:
+        index: the model's :class:`ModelIndex` (free-joint addresses).
+        qpos: (..., nq) joint positions (NumPy or JAX).
+        xp: the array module, ``numpy`` (C MuJoCo) or ``jax.numpy`` (MJX, traceable).
+
+    Returns:
+        (..., n_objects, 3) poses; pitch = 2 atan2(q_y, q_w) of the free joint's quaternion.
+    """
+    rows = [xp.stack([qpos[..., a], qpos[..., a + 2], 2.0 * xp.arctan2(qpos[..., a + 5], qpos[..., a + 3])], axis=-1)
+            for a in index.qpos]
+    return xp.stack(rows, axis=-2)
+
+
 def object_start_pose(scene: Scene, i: int) -> tuple[np.ndarray, list[float]]:
     """Centre position (3,) in m and orientation quaternion (4,) of object ``i`` at rest.
 

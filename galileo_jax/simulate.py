@@ -40,7 +40,7 @@ from galileo_jax.effects.runtime import (effect_param_names, forces, frictions, 
                                          make_context, model_updates, neutral_values, split_values)
 from galileo_jax import simulate_c
 from galileo_jax.errors import GalileoError
-from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model
+from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model, object_poses
 from galileo_jax.scene import Scene
 
 
@@ -193,12 +193,8 @@ def apply_params(sim: Simulator, params: PhysParams) -> mjx.Model:
 
 
 def _pose(sim: Simulator, qpos: jax.Array) -> jax.Array:
-    """(n_objects, 3) centre x, z (m) and pitch about y (rad) from ``qpos``."""
-    rows = []
-    for a in sim.index.qpos:
-        w, qy = qpos[a + 3], qpos[a + 5]
-        rows.append(jnp.stack([qpos[a], qpos[a + 2], 2.0 * jnp.arctan2(qy, w)]))
-    return jnp.stack(rows)
+    """(n_objects, 3) centre x, z (m) and pitch about y (rad) from ``qpos`` (:func:`~galileo_jax.model.object_poses`)."""
+    return object_poses(sim.index, qpos, jnp)
 
 
 def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:

@@ -35,6 +35,7 @@ from mujoco import rollout as mj_rollout
 
 from galileo_jax.effects.runtime import apply_c_model, has_step_hooks, neutral_values
 from galileo_jax.errors import GalileoError
+from galileo_jax.model import object_poses
 
 #: Engines a simulator can run on.
 ENGINES = ("mjx", "mujoco")
@@ -53,7 +54,7 @@ def check_supported(effects) -> None:
         GalileoError: an effect acts every physics step (``force`` or ``friction`` hook), which
             the open-loop ``mujoco.rollout`` cannot apply; the fix is ``--engine mjx``.
     """
-    stepped = [e.name for e in effects if e.force is not None or e.friction is not None]
+    stepped = [e.name for e in effects if has_step_hooks((e,))]
     if stepped:
         raise GalileoError(f"effect(s) {', '.join(stepped)} act every physics step, which the C MuJoCo engine "
                            "cannot do; use --engine mjx")
@@ -72,24 +73,19 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, effects: np.ndarray | 
     Returns:
         (models, state0): B ``MjModel`` copies and (B, nstate) full physics states at release.
     """
+    from galileo_jax.simulate import PhysParams  # simulate imports this module
+    from galileo_jax.synth import set_physics
+
     base = sim.mj_model
     index = sim.index
     data = mujoco.MjData(base)
     nstate = mujoco.mj_stateSize(base, _STATE_SPEC)
-    bodies = list(index.body)
-    m0 = np.asarray(sim.base["body_mass"])
-    i0 = np.asarray(sim.base["body_inertia"])
     models, state0 = [], np.empty((mass.shape[0], nstate))
     neutral = neutral_values(sim.effects)
     for b in range(mass.shape[0]):
         m = copy.copy(base)
-        m.body_mass[bodies] = mass[b]
-        m.body_inertia[bodies] = i0 * (mass[b] / m0)[:, None]
-        for i in range(sim.n_objects):
-            for pid in index.pairs[i]:
-                m.pair_friction[pid, 0:2] = friction[b, i]
         mujoco.mj_resetData(m, data)
-        mujoco.mj_setConst(m, data)
+        set_physics(m, data, index, PhysParams(mass[b], friction[b]))  # as the renderer sets them
         if sim.effects:
             values = effects[b] if effects is not None else neutral
             apply_c_model(sim.effects, values, m, data, index, sim.ctx, friction[b])
@@ -122,11 +118,7 @@ def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, effects: np.
     datas = [mujoco.MjData(sim.mj_model) for _ in range(min(nthread, len(models)))]
     state, _ = mj_rollout.rollout(models, datas, state0, nstep=n_steps)
     qpos = np.concatenate([state0[:, None, 1:1 + sim.mj_model.nq], state[:, :, 1:1 + sim.mj_model.nq]], axis=1)
-    rows = []
-    for a in sim.index.qpos:
-        w, qy = qpos[..., a + 3], qpos[..., a + 5]
-        rows.append(np.stack([qpos[..., a], qpos[..., a + 2], 2.0 * np.arctan2(qy, w)], axis=-1))
-    return np.stack(rows, axis=-2)
+    return object_poses(sim.index, qpos)
 
 
 def rollout_poses(sim, mass: jax.Array, friction: jax.Array, effects: jax.Array | None, n_steps: int) -> jax.Array:
