@@ -146,7 +146,11 @@ def load_yaml_model(path: str | Path, model: type[BaseModel], example: str) -> B
     except yaml.YAMLError:
         raise ConfigError(f"config file {path} is not valid YAML; fix the syntax") from None
     except ValidationError as err:
-        first = err.errors()[0]
-        loc = ".".join(str(p) for p in first["loc"])
-        msg = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
-        raise ConfigError(f"config file {path}: {loc}: {msg} (see {example})") from None
+        raise ConfigError(f"config file {path}: {first_error(err)} (see {example})") from None
+
+
+def first_error(err: ValidationError) -> str:
+    """'key.path: what is wrong' of a pydantic validation error's first error (one line)."""
+    first = err.errors()[0]
+    loc = ".".join(str(p) for p in first["loc"])
+    return f"{loc}: {'unknown key' if first['type'] == 'extra_forbidden' else first['msg']}"

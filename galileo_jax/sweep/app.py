@@ -106,16 +106,14 @@ def fit_config(cfg: DictConfig) -> "FitConfig":  # noqa: F821
     """
     from pydantic import ValidationError
 
-    from galileo_jax.config import ConfigError, FitConfig
+    from galileo_jax.config import ConfigError, FitConfig, first_error
 
     data = {name: OmegaConf.to_container(cfg[name], resolve=True) if OmegaConf.is_config(cfg[name]) else cfg[name]
             for name in FitConfig.model_fields if name in cfg}
     try:
         return FitConfig.model_validate(data)
     except ValidationError as err:
-        first = err.errors()[0]
-        raise ConfigError(f"setting {'.'.join(str(p) for p in first['loc'])}: {first['msg']} "
-                          f"(see configs/fit.yaml)") from None
+        raise ConfigError(f"setting {first_error(err)} (see configs/fit.yaml)") from None
 
 
 def _truth(video: Path) -> dict[str, float] | None:
