@@ -105,6 +105,31 @@ def test_problems_of_one_scene_share_compiled_functions_but_not_data(problem):
     assert ll_other[0] > ll_other[1]  # its own truth is the better point
 
 
+def test_grad_runs_more_starts_than_a_chunk_in_chunks(problem, monkeypatch):
+    """More LM starts than ``MAX_LM_STARTS`` run as several calls of ONE compiled solver (the
+    last chunk padded to the same shape) and give exactly the unchunked answer. (64 vmapped
+    MJX starts deadlocked; the C engine keeps this test cheap, the chunking is the same.)"""
+    import galileo_jax.inference.grad as grad
+
+    c_problem = Problem(SCENE2, problem.observation, engine="mujoco")
+    kw = dict(n_starts=5, n_screen=16, max_steps=4, polish_rounds=0)
+    whole = fit_grad(c_problem, jax.random.key(2), **kw)  # 5 <= MAX_LM_STARTS: one call
+    solver = c_problem.jitted(("lm", "fd", grad.DEFAULT_FD_STEP, 1e-4, 1e-4, 4), None)  # the cached solver
+    shapes = solver._cache_size()
+    monkeypatch.setattr(grad, "MAX_LM_STARTS", 2)
+    chunked = fit_grad(c_problem, jax.random.key(2), **kw)  # chunks of 2, 2, 1 (+1 copy)
+    assert solver._cache_size() == shapes + 1  # one new shape, (2, d), for all three chunks
+    assert chunked.starts_theta.shape == (5, 3)
+    np.testing.assert_array_equal(chunked.starts_theta0, whole.starts_theta0)
+    np.testing.assert_allclose(chunked.starts_theta, whole.starts_theta, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(chunked.starts_cost, whole.starts_cost, rtol=1e-12)
+    np.testing.assert_array_equal(chunked.starts_iterations, whole.starts_iterations)
+    np.testing.assert_array_equal(chunked.starts_converged, whole.starts_converged)
+    np.testing.assert_allclose(chunked.theta, whole.theta, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="chunk"):
+        grad.solve_starts(solver, jnp.zeros((3, 3)), c_problem.data, chunk=0)
+
+
 def test_grad_with_held_parameters(problem):
     """fit_grad(fixed=...) fits only the free coordinates and reports the held one exactly."""
     res = fit_grad(problem, jax.random.key(1), n_starts=2, n_screen=16, max_steps=30, fixed={"phi": TRUTH["phi"]})

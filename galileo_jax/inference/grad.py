@@ -162,6 +162,49 @@ def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
     return cov
 
 
+#: Most Levenberg-Marquardt starts vmapped into one solve; more run as several calls of the same
+#: jitted solver, chunks of exactly this many starts (the last padded with copies of its last
+#: start, so one compiled shape serves every chunk). Why: on the MJX engine each LM step of S
+#: starts is one batch of S (2d + 1) rollouts, and jaxlib 0.10.2's batched LAPACK Cholesky in
+#: MJX's solver deadlocked (every XLA thread asleep) at 64 starts (576 rollouts; d = 4) on
+#: 2 cores, where 32 ran; 16 keeps a batch at <= 16 (2d + 1) rollouts (144 for d = 4), and
+#: MJX's throughput is flat above batch 16 (:data:`~galileo_jax.inference.problem.DEFAULT_MAX_BATCH`).
+MAX_LM_STARTS = 16
+
+
+def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None) -> tuple:
+    """Run a jitted ``solve(z0s (S, d), data)`` (:func:`_lm_solver`) over all starts, at most
+    ``chunk`` (default :data:`MAX_LM_STARTS`) per call.
+
+    Arguments:
+        solve: the jitted vmapped solver; its outputs all have the starts as leading axis.
+        z0: (S, d) starting points in z.
+        data: the problem's data pytree (passed through).
+        chunk: starts per call; S <= chunk runs as one call of shape (S, d).
+
+    Returns:
+        ``solve``'s outputs for all S starts, in order (JAX arrays, as ``solve`` returns them).
+
+    Raises:
+        ValueError: chunk < 1.
+    """
+    chunk = MAX_LM_STARTS if chunk is None else int(chunk)
+    if chunk < 1:
+        raise ValueError(f"chunk must be >= 1, got {chunk}")
+    n = int(z0.shape[0])
+    if n <= chunk:
+        return solve(z0, data)
+    z0 = np.asarray(z0)
+    parts = []
+    for i in range(0, n, chunk):
+        zc = z0[i:i + chunk]
+        pad = chunk - zc.shape[0]
+        if pad:  # copies of the last start: same shape, same compiled program
+            zc = np.concatenate([zc, np.repeat(zc[-1:], pad, axis=0)])
+        parts.append([np.asarray(o)[:chunk - pad] for o in solve(jnp.asarray(zc), data)])
+    return tuple(jnp.asarray(np.concatenate(p)) for p in zip(*parts))
+
+
 def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
     """Pure ``solve(z0s (S, d), data)``: vmapped Levenberg-Marquardt from S starts."""
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
@@ -289,7 +332,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     z0 = space.to_unconstrained(theta0)
 
     solve = problem.jitted(("lm", jacobian, fd_step, rtol, atol, max_steps), _lm_solver(res_fn, rtol, atol, max_steps))
-    z_end, cost, steps, ok, codes = solve(z0, problem.data)
+    z_end, cost, steps, ok, codes = solve_starts(solve, z0, problem.data)  # chunked: MAX_LM_STARTS
     cost = np.asarray(cost, np.float64)
     cost = np.where(np.isfinite(cost), cost, np.inf)
     best = int(np.argmin(cost))
