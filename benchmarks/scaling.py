@@ -14,16 +14,23 @@ work, so the time measures the cost of the work and not how soon a solver stops:
 * ``starts``: ``grad`` with ``--starts`` starts (screen ``max(256, starts)``, ``--grad-steps``
   steps), ``--base-length`` s video.
 
-Large grad batches can hang. fit_grad vmaps all starts' Levenberg-Marquardt iterations
-together, each with its 2d + 1 finite-difference rollouts, unchunked: 64 starts are 576
-rollouts in one batch, whose MJX Newton solver calls jaxlib's batched LAPACK Cholesky
-(``lapack_dpotrf_ffi``). In jaxlib 0.10.2 that kernel splits a large batch over XLA's intra-op
-thread pool and blocks waiting for the pieces (``jax::ParallelBatchMap``); when as many such
-calls run at once as the pool has threads (2 here), every thread waits and nothing runs: a
-deadlock (seen with gdb, 2 of 2 tries with 64 starts; 32 starts, 288 rollouts, finished;
-``--xla_cpu_multi_thread_eigen=false`` does not help). The default sweep therefore stops at 32
-starts, and every point runs under a watchdog (``--point-timeout``): a point without a result
-in time ends its worker process, is recorded as hung, and a new worker goes on with the rest.
+Engine (``--engine``): the fits' rollouts run on ``mjx`` or ``mujoco`` (C MuJoCo), default the
+one ``fit --engine auto`` picks with the default settings on this machine
+(:func:`galileo_jax.config.resolve_engine`: ``mujoco`` on a CPU). Records carry their engine;
+a run with one engine keeps the other engine's records in the JSON (same settings), so the
+tables and the plot show both. Records written before the option existed were MJX runs.
+
+Large grad batches could hang. fit_grad used to vmap all starts' Levenberg-Marquardt iterations
+together, each with its 2d + 1 finite-difference rollouts: 64 starts were 576 rollouts in one
+MJX batch, whose Newton solver calls jaxlib's batched LAPACK Cholesky (``lapack_dpotrf_ffi``).
+In jaxlib 0.10.2 that kernel splits a large batch over XLA's intra-op thread pool and blocks
+waiting for the pieces (``jax::ParallelBatchMap``); when as many such calls run at once as the
+pool has threads (2 here), every thread waits and nothing runs: a deadlock (seen with gdb, 2 of
+2 tries with 64 starts; 32 starts, 288 rollouts, finished; ``--xla_cpu_multi_thread_eigen=false``
+does not help). fit_grad now runs the starts in chunks of at most
+:data:`galileo_jax.inference.grad.MAX_LM_STARTS` (16), so 64 starts run. Every point still runs
+under a watchdog (``--point-timeout``): a point without a result in time ends its worker
+process, is recorded as hung, and a new worker goes on with the rest.
 
 Every configuration runs once first (JAX compiles it; that "first call" time is kept), then
 ``--repeats`` more times: "time" is their median wall time (compilation excluded). Rollouts
@@ -34,7 +41,8 @@ and over the upper half (the asymptotic cost, once fixed overheads no longer dom
 Writes ``benchmarks/results/scaling.{md,json,png}`` atomically after every point; rerunning with
 the same settings resumes from the JSON (``--fresh``: start again).
 
-    nice -n 10 python benchmarks/scaling.py --fresh         # defaults: 13 min on 2 busy cores
+    nice -n 19 python benchmarks/scaling.py --engine mujoco  # defaults: minutes on 2 busy cores
+    nice -n 19 python benchmarks/scaling.py --engine mjx     # MJX (13 min without the 64-start point)
     python benchmarks/scaling.py --lengths 1 2 4 8 16 --chains 4 16 64 256 1024 --starts 1 4 16 32 64 --repeats 3
 """
 
@@ -59,7 +67,9 @@ TRUTH = {"k1": 0.2, "k2": 0.25, "m1": 0.6, "m2": 0.3}  # phi = 1/3, the shipped 
 SCREEN = 256
 
 
-def make_problem(length: float, noise: float):
+def make_problem(length: float, noise: float, engine: str = "mjx"):
+    """The fit problem of a ``length`` s observation (MJX-simulated, ``noise`` m position noise),
+    its rollouts on ``engine`` ("mjx" or "mujoco")."""
     from galileo_jax.inference import Problem, simulated_observation
     from galileo_jax.scene import load_scene
     from galileo_jax.simulate import PhysParams
@@ -67,7 +77,14 @@ def make_problem(length: float, noise: float):
     scene = load_scene(ROOT / "scenes" / "ramp_20.yaml")
     truth = PhysParams(np.array([TRUTH["m1"], TRUTH["m2"]]), np.array([TRUTH["k1"], TRUTH["k2"]]))
     obs = simulated_observation(scene, truth, fps=30.0, duration=length, position_sd=noise, release_time=0.1, seed=0)
-    return Problem(scene, obs)
+    return Problem(scene, obs, engine=engine)
+
+
+def default_engine() -> str:
+    """The engine ``fit --engine auto`` picks with the default settings on this machine."""
+    from galileo_jax.config import FitConfig, resolve_engine
+
+    return resolve_engine(FitConfig())
 
 
 def run_grad(problem, starts: int, steps: int) -> tuple[float, int]:
@@ -114,10 +131,10 @@ def points(args) -> list[dict]:
     for s in args.starts:
         out.append({"sweep": "starts", "method": "grad", "x": int(s), "length": args.base_length, "starts": int(s),
                     "steps": args.grad_steps})
-    return out
+    return [{**p, "engine": args.engine} for p in out]
 
 
-POINT_KEYS = ("method", "length", "starts", "chains", "steps")
+POINT_KEYS = ("method", "engine", "length", "starts", "chains", "steps")
 
 
 def key_of(p: dict) -> str:
@@ -132,7 +149,7 @@ def measure(p: dict, problems: dict, args) -> dict:
         if len(problems) >= 2:  # keep a few compiled programs only (memory maps; problem.clear_caches)
             problems.clear()
             clear_caches()
-        problems[p["length"]] = make_problem(p["length"], args.noise)
+        problems[p["length"]] = make_problem(p["length"], args.noise, p["engine"])
     problem = problems[p["length"]]
     fn = (lambda: run_grad(problem, p["starts"], p["steps"])) if p["method"] == "grad" else \
         (lambda: run_mh(problem, p["chains"], p["steps"]))
@@ -150,12 +167,12 @@ def slope(xs, ys) -> float:
 
 
 def series(records: list[dict]) -> dict:
-    """{(sweep, method): sorted records} with the fitted slopes."""
+    """{"sweep/method/engine": sorted records} with the fitted slopes."""
     out = {}
     for r in records:
         if r.get("hung"):
             continue
-        out.setdefault(f"{r['sweep']}/{r['method']}", []).append(r)
+        out.setdefault(f"{r['sweep']}/{r['method']}/{r.get('engine', 'mjx')}", []).append(r)
     summary = {}
     for k, rs in sorted(out.items()):
         rs = sorted(rs, key=lambda r: r["x"])
@@ -186,9 +203,9 @@ def plot(path: Path, summary: dict, doc: dict) -> None:
         for k, s in summary.items():
             if not k.startswith(sweep + "/"):
                 continue
-            method = k.split("/")[1]
-            ax.loglog(s["x"], s["time_s"], "o-",
-                      label=f"{method} (slope {s['slope']:.2f}, upper {s['slope_upper']:.2f})")
+            method, engine = k.split("/")[1:]
+            ax.loglog(s["x"], s["time_s"], "o-" if engine == "mujoco" else "s--",
+                      label=f"{method}, {engine} (slope {s['slope']:.2f}, upper {s['slope_upper']:.2f})")
             x0, t0 = s["x"][0], s["time_s"][0]
             xs = np.array([s["x"][0], s["x"][-1]], float)
             ax.loglog(xs, t0 * xs / x0, ":", color="grey", lw=1)
@@ -218,7 +235,9 @@ def write_all(path: Path, doc: dict) -> None:
     plot(path, summary, doc)
     s = doc["settings"]
     lines = ["# Fit cost scaling: video length, MH chains, grad starts", "", f"machine: {doc['machine']}", "",
-             f"Command: `{doc['command']}` (module docstring of `benchmarks/scaling.py`). 20 degree two-box scene, "
+             "Commands: " + "; ".join(f"{e}: `{c}`" for e, c in doc["commands"].items())
+             + " (module docstring of `benchmarks/scaling.py`; engine: where the fits' rollouts ran, mjx = "
+             "MuJoCo-MJX, mujoco = C MuJoCo; each engine's records come from its own run). 20 degree two-box scene, "
              f"theta = k1, k2, phi, dt_release; grad: {s['grad_steps']} LM steps per start (tolerances 0, no polish), "
              f"screen max(256, starts); mh: {s['mh_steps']} steps, no warm-up; base video {s['base_length']} s "
              "at 30 fps "
@@ -226,18 +245,18 @@ def write_all(path: Path, doc: dict) -> None:
              f"JAX's persistent compilation cache {doc.get('compilation_cache', 'on')} (with it on, a first call "
              "that finds its programs in the cache skips most of the compilation). "
              f"Plot: `{path.with_suffix('.png').name}`.", "",
-             "| sweep | method | x | time (s) | first call (s) | rollouts | rollouts/s | physics steps per rollout "
-             "| physics steps/s (all rollouts) |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(doc["records"], key=lambda r: (r["sweep"], r["method"], r["x"])):
+             "| sweep | method | engine | x | time (s) | first call (s) | rollouts | rollouts/s | physics steps "
+             "per rollout | physics steps/s (all rollouts) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(doc["records"], key=lambda r: (r["sweep"], r["method"], r["engine"], r["x"])):
+        head = f"| {r['sweep']} | {r['method']} | {r['engine']} | {r['x']:g} |"
         if r.get("hung"):
-            lines.append(f"| {r['sweep']} | {r['method']} | {r['x']:g} | hung: no result in {r['timeout_s']:g} s "
-                         "| - | - | - | - | - |")
+            lines.append(f"{head} hung: no result in {r['timeout_s']:g} s | - | - | - | - | - |")
             continue
-        lines.append(f"| {r['sweep']} | {r['method']} | {r['x']:g} | {r['time_s']:.2f} | {r['first_s']:.1f} | "
+        lines.append(f"{head} {r['time_s']:.2f} | {r['first_s']:.1f} | "
                      f"{r['rollouts']} | {r['rollouts_per_s']:.0f} | {r['n_steps']} | "
                      f"{r['rollouts'] * r['n_steps'] / r['time_s']:.0f} |")
     lines += ["", "Fitted log-log slopes of time against the swept size (all points; upper half; rollouts):", "",
-              "| sweep / method | slope | slope, upper half | rollouts slope |", "|---|---|---|---|"]
+              "| sweep / method / engine | slope | slope, upper half | rollouts slope |", "|---|---|---|---|"]
     for k, v in summary.items():
         lines.append(f"| {k} | {v['slope']:.2f} | {v['slope_upper']:.2f} | {v['slope_rollouts']:.2f} |")
     with atomic_path(path.with_suffix(".md")) as tmp:
@@ -255,15 +274,16 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--lengths", type=float, nargs="+", default=[1.0, 2.0, 4.0, 8.0], help="video lengths (s)")
     ap.add_argument("--chains", type=int, nargs="+", default=[4, 16, 64, 256], help="MH chain counts")
-    ap.add_argument("--starts", type=int, nargs="+", default=[1, 4, 16, 32],
-                    help="grad start counts (64 deadlocks with jaxlib 0.10.2 on 2 cores: module docstring)")
+    ap.add_argument("--starts", type=int, nargs="+", default=[1, 4, 16, 32, 64], help="grad start counts")
+    ap.add_argument("--engine", choices=("mjx", "mujoco"), default=None,
+                    help="simulation engine of the fits (default: what fit --engine auto picks here)")
     ap.add_argument("--base-length", type=float, default=2.0, help="video length (s) of the chains and starts sweeps")
     ap.add_argument("--grad-steps", type=int, default=3, help="LM steps per grad start")
     ap.add_argument("--mh-steps", type=int, default=10, help="MH steps")
     ap.add_argument("--repeats", type=int, default=1, help="timed runs after the compiling one (median)")
     ap.add_argument("--noise", type=float, default=1e-3, help="position noise SD (m)")
     ap.add_argument("--out", default=str(RESULTS / "scaling"), help="results stem (.md, .json, .png)")
-    ap.add_argument("--fresh", action="store_true", help="measure everything again (ignore the records in the JSON)")
+    ap.add_argument("--fresh", action="store_true", help="measure this engine's points again (the other engine's records stay)")
     ap.add_argument("--no-cache", action="store_true",
                     help="skip JAX's persistent compilation cache (first-call times then always include compilation)")
     ap.add_argument("--point-timeout", type=float, default=900.0,
@@ -273,6 +293,9 @@ def main(argv=None) -> int:
     if min(args.lengths + [args.base_length]) <= 0 or min(args.chains) < 2 or min(args.starts) < 1 or args.repeats < 1:
         ap.error("lengths must be > 0, chains >= 2, starts >= 1, repeats >= 1")
     argv = list(sys.argv[1:] if argv is None else argv)
+    if args.engine is None:
+        args.engine = default_engine()
+        argv += ["--engine", args.engine]
     if args.worker:
         return worker(args, argv)
     # Supervisor: a worker process measures the points. The watchdog ends a worker whose point
@@ -304,12 +327,20 @@ def worker(args, argv: list[str]) -> int:
     settings = {k: getattr(args, k) for k in ("grad_steps", "mh_steps", "repeats", "noise", "base_length")}
     cache = "off" if args.no_cache else "on"
     shown = [a for a in argv if a not in ("--worker", "--fresh")]
-    doc = {"machine": machine_line(), "command": " ".join(["python benchmarks/scaling.py", *shown]),
+    command = " ".join(["python benchmarks/scaling.py", *shown])
+    doc = {"machine": machine_line(), "commands": {args.engine: command},
            "settings": settings, "compilation_cache": cache, "records": []}
     old = path.with_suffix(".json")
-    if old.exists() and not args.fresh:
+    if old.exists():
         prev = json.loads(old.read_text())
+        for r in prev.get("records", []) + ([prev["pending"]] if prev.get("pending") else []):
+            r.setdefault("engine", "mjx")  # written before --engine existed: MJX runs
+        if args.fresh:  # measure this engine again, keep the other's records
+            prev["records"] = [r for r in prev.get("records", []) if r["engine"] != args.engine]
+            prev.pop("pending", None)
         if prev.get("settings") == settings:
+            commands = prev.get("commands", {"mjx": prev["command"]} if "command" in prev else {})
+            doc["commands"] = {**commands, args.engine: command}
             doc["records"] = prev.get("records", [])
             was = prev.get("compilation_cache", cache)
             doc["compilation_cache"] = was if was == cache else f"{was}, then {cache} (resumed)"

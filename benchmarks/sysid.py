@@ -10,8 +10,10 @@ and reaches object 2), an observation is simulated (``--truth c``: C MuJoCo,
 both fit theta = (k1, k2, phi) and nothing else. Then:
 
 * ``grad`` (ours): :func:`~galileo_jax.inference.grad.fit_grad` on a
-  :class:`~galileo_jax.inference.problem.Problem` (MJX, vmapped rollouts, finite-difference
-  Jacobian with step 0.05 in the logit coordinates, Levenberg-Marquardt, polish), with the
+  :class:`~galileo_jax.inference.problem.Problem` (rollouts on ``--engine``: ``mjx``, MJX's
+  vmapped rollouts, or ``mujoco``, C MuJoCo's batched ``mujoco.rollout``; default the engine
+  ``fit --engine auto`` picks with the default settings here, :func:`galileo_jax.config.resolve_engine`:
+  ``mujoco`` on a CPU; finite-difference Jacobian with step 0.05 in the logit coordinates, Levenberg-Marquardt, polish), with the
   default settings of ``configs/fit.yaml`` (likelihood ``gaussian_iid``, sd_model 0.05 m/s;
   4 starts, the best of a 256-point screen; 40 steps), and from one given start.
 * ``sysid``: ``mujoco.sysid.optimize`` (shipped with mujoco 4.0.0; ``pip install
@@ -48,6 +50,11 @@ model's nominal values k1 = k2 = 0.3, m1 = m2 = 0.5 kg, i.e. phi = 0) and, for s
 ``screened``: one run from each of grad's 4 screened starts, the lowest end cost wins (the
 same starts as ours, without the screen's cost: 256 MJX rollouts, about 2 s).
 
+Our rows are named by engine, ``grad (mjx)`` and ``grad (mujoco)``. A run with one engine
+keeps the other engine's grad rows of the JSON (same settings) and runs sysid again, so the
+sysid rows and this engine's grad rows come from the same run (same load). Records written
+before ``--engine`` existed hold MJX grad rows named ``grad``: read as ``grad (mjx)``.
+
 Per set and method: |error| of k1, k2, phi; the profile RMSE (m/s, all four traces) of the
 estimate against the observation, simulated in C MuJoCo and in MJX, and 0.5 |r|^2 in both;
 wall time (ours: compilation excluded, every configuration runs once on a warm-up set first;
@@ -59,7 +66,8 @@ iteration counts, see :func:`grad_rollouts`); iterations. Writes
 ``benchmarks/results/sysid.{md,json}`` atomically after each set; rerunning with the same
 settings resumes from the JSON (``--fresh``: start again).
 
-    nice -n 10 python benchmarks/sysid.py                   # 5 sets: 12 min on 2 busy cores
+    nice -n 19 python benchmarks/sysid.py --engine mujoco   # 5 sets
+    nice -n 19 python benchmarks/sysid.py --engine mjx      # 5 sets: 12 min on 2 busy cores
     python benchmarks/sysid.py --sets 20 --truth mjx --out benchmarks/results/sysid_mjx
 """
 
@@ -153,7 +161,8 @@ def draw_set(scene, i: int, args) -> tuple[np.ndarray, np.ndarray]:
 
 # --------------------------------------------------------------------------- common referee
 class Referee:
-    """Profile RMSE and cost of any theta against one observation, in C MuJoCo and in MJX."""
+    """Profile RMSE and cost of any theta against one observation, in C MuJoCo and in MJX
+    (``problem`` must run on MJX)."""
 
     def __init__(self, scene, obs, problem, args):
         self.scene, self.obs, self.problem, self.args = scene, obs, problem, args
@@ -374,21 +383,29 @@ class SysidSetup:
 
 
 # --------------------------------------------------------------------------- one set
+def grad_name(engine: str) -> str:
+    """Our method's name in the tables, by engine."""
+    return f"grad ({engine})"
+
+
 def run_set(scene, cfg, i: int, args, variants) -> dict:
+    """Set i: our grad on ``args.engine`` (default and shared start), then every sysid variant."""
     from galileo_jax.inference import Problem
 
     truth, start = draw_set(scene, i, args)
     obs = make_observation(scene, truth, args, seed=args.seed * 1000 + i + 1)
-    problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model)
+    kw = dict(likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model)
+    problem = Problem(scene, obs, engine=args.engine, **kw)
     if list(problem.space.names) != list(NAMES):
         raise SystemExit(f"error: expected parameters {NAMES}, the problem has {problem.space.names}")
-    referee = Referee(scene, obs, problem, args)
+    referee = Referee(scene, obs, problem if args.engine == "mjx" else Problem(scene, obs, engine="mjx", **kw), args)
     setup = SysidSetup(scene, obs, referee.whiten, args)
     default_start = np.array([0.3, 0.3, 0.0])  # the model's nominal frictions and equal masses
     runs = {}
+    ours = grad_name(args.engine)
     for mode in ("default", "shared"):
-        runs[f"grad | {mode}"] = run_grad(problem, cfg, start, mode)
-    screened = runs["grad | default"]["starts"]
+        runs[f"{ours} | {mode}"] = run_grad(problem, cfg, start, mode)
+    screened = runs[f"{ours} | default"]["starts"]
     for v in variants:
         backend, opts = parse_variant(v)
         for mode, th0 in (("default", default_start), ("shared", start)):
@@ -459,13 +476,19 @@ def write_tables(path: Path, doc: dict) -> None:
              f"{s['duration']} s at {s['fps']} fps simulated in {'C MuJoCo' if s['truth'] == 'c' else 'MJX'}, "
              f"released after {s['rest']} frames (known to both: theta = k1, k2, phi), position noise "
              f"{s['noise'] * 1000:g} mm. Both minimise the same whitened velocity-profile cost 0.5 |r|^2 "
-             "(gaussian_iid, sd_model 0.05 m/s); grad in MJX, sysid in C MuJoCo. Mean over sets: |error|; "
+             "(gaussian_iid, sd_model 0.05 m/s); grad on the engine in its name (mjx: MuJoCo-MJX, mujoco: C "
+             "MuJoCo), sysid in C MuJoCo. Mean over sets: |error|; "
              "RMSE (m/s, all four traces) and cost of the estimate's profile simulated in C MuJoCo (C; mean) and "
              "MJX (median: MJX blows up at some estimates C MuJoCo simulates fine, such as k2 = 0 on its bound; "
              "'MJX blown up' counts them: rollout not finite or RMSE > 1 m/s); "
              "time: wall time per fit, mean (median), compilation excluded for grad; simulations: rollouts "
              "(grad: executed by its batched programs; sysid: counted in its residual callback); iterations: "
              "grad LM steps of all starts; sysid mujoco backend iterations, scipy backend function evaluations.", ""]
+    runs_of = doc.get("engine_runs", {})
+    if runs_of:
+        lines += ["Runs: " + "; ".join(f"grad ({e}): `{c}`" for e, c in runs_of.items()) + ". The sysid rows come "
+                  f"from the last run (`{doc['command']}`), together with that run's grad rows; another engine's "
+                  "grad rows were measured in their own run (other load: compare its times with care).", ""]
     if "compile" in doc:
         cache = "on: programs found in the cache are not compiled again" if s.get("cache") else "off"
         lines += ["grad's first call (warm-up set, compilation included; persistent compilation cache "
@@ -510,6 +533,19 @@ def write_tables(path: Path, doc: dict) -> None:
 
 
 # --------------------------------------------------------------------------- main
+def read_previous(path: Path, ours: str, fresh: bool) -> dict:
+    """The JSON of an earlier run, grad rows named by engine (rows named ``grad``, from before
+    ``--engine``, are MJX's); with ``fresh``, without ``ours``'s rows (the other engine's stay)."""
+    prev = json.loads(path.read_text())
+    rename = lambda m: "grad (mjx)" + m[len("grad"):] if m.startswith("grad |") else m  # noqa: E731
+    for r in prev.get("records", []):
+        r["runs"] = {rename(m): v for m, v in r["runs"].items() if not (fresh and m.startswith(ours))}
+    prev["compile"] = {rename(m): v for m, v in prev.get("compile", {}).items() if not (fresh and m.startswith(ours))}
+    if "engine_runs" not in prev and any("grad (mjx) | default" in r["runs"] for r in prev.get("records", [])):
+        prev["engine_runs"] = {"mjx": prev.get("command", "") + " (before --engine: MJX)"}
+    return prev
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", type=int, default=5, help="random true parameter sets")
@@ -521,10 +557,12 @@ def main(argv=None) -> int:
     ap.add_argument("--sysid", nargs="+", default=["mujoco", "scipy", "mujoco:eps=0.01", "mujoco:eps=0.01;x_scale=jac"],
                     help="mujoco.sysid variants, backend[:key=value;...] (module docstring)")
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--engine", choices=("mjx", "mujoco"), default=None,
+                    help="simulation engine of our grad (default: what fit --engine auto picks here)")
     ap.add_argument("--out", default=str(RESULTS / "sysid"), help="results stem (.md and .json are added)")
     ap.add_argument("--no-warmup", action="store_true",
                     help="skip the warm-up set (grad's times then include compilation)")
-    ap.add_argument("--fresh", action="store_true", help="run every set again (ignore the records in the JSON)")
+    ap.add_argument("--fresh", action="store_true", help="run every set again (drop this engine's grad rows; the other engine's stay)")
     ap.add_argument("--cache", action="store_true",
                     help="use JAX's persistent compilation cache (off by default, so that the first call's time "
                          "measures compilation)")
@@ -539,32 +577,43 @@ def main(argv=None) -> int:
         print("error: mujoco.sysid needs its optional dependencies: pip install \"mujoco[sysid]\"", file=sys.stderr)
         return 2
     logging.getLogger("absl").setLevel(logging.ERROR)
-    from galileo_jax.config import FitConfig
+    from galileo_jax.config import FitConfig, resolve_engine
     from galileo_jax.jaxcache import enable_compilation_cache
 
     if args.cache:
         enable_compilation_cache()
     cfg = FitConfig()
+    if args.engine is None:
+        args.engine = resolve_engine(cfg)
     scene = load_fit_scene()
     path = Path(args.out)
     settings = {k: getattr(args, k) for k in ("duration", "fps", "rest", "noise", "truth", "sysid", "seed", "cache")}
     shown = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--fresh"]
-    doc = {"machine": machine_line(), "command": " ".join(["python benchmarks/sysid.py", *shown]),
+    if "--engine" not in shown and not any(a.startswith("--engine=") for a in shown):
+        shown += ["--engine", args.engine]
+    command = " ".join(["python benchmarks/sysid.py", *shown])
+    ours = grad_name(args.engine)
+    doc = {"machine": machine_line(), "command": command, "engine_runs": {args.engine: command},
            "settings": settings, "records": []}
     old = path.with_suffix(".json")
-    if old.exists() and not args.fresh:
-        prev = json.loads(old.read_text())
+    if old.exists():
+        prev = read_previous(old, ours, fresh=args.fresh)
         if prev.get("settings") == settings:
             doc["records"] = [r for r in prev.get("records", []) if r["set"] < args.sets]
-            if "compile" in prev:
-                doc["compile"] = prev["compile"]
-    done = {r["set"] for r in doc["records"]}
+            doc["compile"] = prev.get("compile", {})
+            doc["engine_runs"] = {**prev.get("engine_runs", {}), args.engine: command}
+    done = {r["set"] for r in doc["records"] if f"{ours} | default" in r["runs"]}
     todo = [i for i in range(args.sets) if i not in done]
     if todo and not args.no_warmup:
         rec = run_set(scene, cfg, -1, args, args.sysid)  # compiles every grad configuration
-        doc["compile"] = {m: r["time_s"] for m, r in rec["runs"].items() if m.startswith("grad")}
+        doc["compile"] = {**doc.get("compile", {}),
+                          **{m: r["time_s"] for m, r in rec["runs"].items() if m.startswith(ours)}}
     for i in todo:
         rec = run_set(scene, cfg, i, args, args.sysid)
+        old_rec = next((r for r in doc["records"] if r["set"] == i), None)
+        if old_rec is not None:  # keep the other engine's grad rows; sysid's come from this run
+            rec["runs"] = {**{m: r for m, r in old_rec["runs"].items() if m.startswith("grad (")}, **rec["runs"]}
+            doc["records"].remove(old_rec)
         doc["records"].append(rec)
         doc["records"].sort(key=lambda r: r["set"])
         write_tables(path, doc)
