@@ -350,22 +350,37 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
             cov_z = gauss_newton_covariance(jac)
     elapsed = time.perf_counter() - t0
 
+    return grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, best_cost, theta0, z_end, cost, steps, ok,
+                       codes, best, jacobian, elapsed)
+
+
+def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, theta0, z_end, cost, steps, ok, codes,
+                best: int, jacobian: str, elapsed: float) -> GradResult:
+    """Assemble a :class:`GradResult` from one video's LM end points (shared by :func:`fit_grad`
+    and :func:`~galileo_jax.inference.batch.fit_grad_batch`).
+
+    Arguments:
+        space: the parameter space; log_norm: the likelihood's normalising constant (nats).
+        z_hat: (d,) best point in z; cov_z: (d, d) its Gauss-Newton covariance; best_cost: its cost.
+        theta0: (S, d) starts in theta; z_end: (S, d) LM end points in z; cost, steps, ok,
+            codes: (S,) per-start cost, LM steps, convergence flag and optimistix result code.
+        best: index of the winning start; jacobian: "fd" or "ad"; elapsed: wall time in s.
+    """
     z_hat_np = np.asarray(z_hat, np.float64)
-    g = np.asarray(space.dtheta_dz(z_hat), np.float64)
+    g = np.asarray(space.dtheta_dz(jnp.asarray(z_hat_np)), np.float64)
     cov_theta = g[:, None] * cov_z * g[None, :]
     sd_z = np.sqrt(np.maximum(np.diag(cov_z), 0.0))
     ends = np.stack([z_hat_np - Z90 * sd_z, z_hat_np + Z90 * sd_z], axis=-1)  # (d, 2)
     interval = np.asarray(space.from_unconstrained(jnp.asarray(ends.T)), np.float64).T
-    theta_hat = np.asarray(space.from_unconstrained(z_hat), np.float64)
-    code = int(np.asarray(codes)[best])
-    message = _result_message(code)
+    theta_hat = np.asarray(space.from_unconstrained(jnp.asarray(z_hat_np)), np.float64)
+    message = _result_message(int(np.asarray(codes)[best]))
     return GradResult(
         names=space.names, theta=theta_hat, z=z_hat_np, cov_z=cov_z, cov_theta=cov_theta,
         sd=np.sqrt(np.maximum(np.diag(cov_theta), 0.0)), interval90=interval,
-        cost=best_cost, loglik=float(-best_cost + problem.likelihood.log_norm),
+        cost=best_cost, loglik=float(-best_cost + log_norm),
         iterations=int(np.asarray(steps)[best]), converged=bool(np.asarray(ok)[best]), result=message,
         starts_theta0=np.asarray(theta0, np.float64),
-        starts_theta=np.asarray(space.from_unconstrained(z_end), np.float64), starts_cost=cost,
+        starts_theta=np.asarray(space.from_unconstrained(jnp.asarray(z_end)), np.float64), starts_cost=cost,
         starts_iterations=np.asarray(steps), starts_converged=np.asarray(ok), jacobian=jacobian,
         time_s=elapsed)
 
@@ -386,7 +401,16 @@ def polish(problem, key: jax.Array, z: np.ndarray, cost: float, cov_z: np.ndarra
     Returns:
         (z (d,), cost) of the best point (the start if nothing was better).
     """
-    d = z.shape[0]
+    norm = float(problem.likelihood.log_norm)
+    z_out, cost_out = polish_many(lambda pts: np.asarray(problem.log_likelihood(pts[0]))[None], key,
+                                  np.asarray(z)[None], np.array([cost]), np.asarray(cov_z)[None], np.array([norm]),
+                                  rounds=rounds, points=points, max_sd=max_sd)
+    return z_out[0], float(cost_out[0])
+
+
+def _polish_factor(cov_z: np.ndarray, max_sd: float) -> np.ndarray:
+    """(d, d) factor L of :func:`polish`'s proposals: L L^T = cov_z, SDs capped at ``max_sd``."""
+    d = cov_z.shape[0]
     sd = np.sqrt(np.maximum(np.diag(cov_z), 1e-12))
     with np.errstate(invalid="ignore"):
         corr = cov_z / np.outer(sd, sd)
@@ -396,17 +420,35 @@ def polish(problem, key: jax.Array, z: np.ndarray, cost: float, cov_z: np.ndarra
         chol = np.linalg.cholesky(corr + 1e-9 * np.eye(d))
     except np.linalg.LinAlgError:  # a singular approximation: independent coordinates
         chol = np.eye(d)
-    chol = chol * np.minimum(sd, max_sd)[:, None]
-    best_z, best_cost = z, cost
-    norm = float(problem.likelihood.log_norm)
+    return chol * np.minimum(sd, max_sd)[:, None]
+
+
+def polish_many(loglik, key: jax.Array, z: np.ndarray, cost: np.ndarray, cov_z: np.ndarray, norm: np.ndarray, *,
+                rounds: int = 3, points: int = 64, max_sd: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`polish` of B videos at once: each round evaluates every video's ``points`` draws
+    in ONE call ``loglik(pts (B, points, d)) -> (B, points)`` (nats). Every video draws the same
+    standard normals (from ``key``), so a video polished in a batch ends where it would alone.
+
+    Arguments:
+        z: (B, d) LM end points in z; cost: (B,) their costs; cov_z: (B, d, d) Gauss-Newton
+            covariances; norm: (B,) the likelihoods' ``log_norm`` (cost = norm - loglik).
+
+    Returns:
+        (z (B, d), cost (B,)) of the best point per video (its start if nothing was better).
+    """
+    b, d = z.shape
+    chol = np.stack([_polish_factor(np.asarray(c, np.float64), max_sd) for c in cov_z])  # (B, d, d)
+    best_z, best_cost = np.array(z, np.float64), np.array(cost, np.float64)
     for r in range(rounds):
         eps = np.asarray(jax.random.normal(jax.random.fold_in(key, r), (points, d)), np.float64)
-        pts = best_z + (0.5**r) * eps @ chol.T
-        c = norm - np.asarray(problem.log_likelihood(pts), np.float64)
+        pts = best_z[:, None] + (0.5**r) * np.einsum("pj,bij->bpi", eps, chol)  # (B, points, d)
+        c = np.asarray(norm, np.float64)[:, None] - np.asarray(loglik(pts), np.float64)
         c = np.where(np.isfinite(c), c, np.inf)
-        i = int(np.argmin(c))
-        if c[i] < best_cost:
-            best_z, best_cost = pts[i], float(c[i])
+        i = np.argmin(c, axis=1)
+        c_min = c[np.arange(b), i]
+        better = c_min < best_cost
+        best_z = np.where(better[:, None], pts[np.arange(b), i], best_z)
+        best_cost = np.where(better, c_min, best_cost)
     return best_z, best_cost
 
 

@@ -322,6 +322,9 @@ class Problem(BatchedAPI):
             to the scene's own ``effects``; their parameters follow the base ones in theta.
         engine: simulation engine, "mjx" (default; differentiable) or "mujoco" (C MuJoCo's
             batched rollouts, faster on CPU; finite-difference Jacobians only).
+        pad_to: optional length (samples) to pad the profile to at least (rounded up to
+            :data:`PAD_SAMPLES`): videos fitted as one batch
+            (:func:`~galileo_jax.inference.batch.fit_grad_batch`) share one length.
 
     Raises:
         ValueError: the observation does not match the scene (number of objects), or any
@@ -337,7 +340,7 @@ class Problem(BatchedAPI):
 
     def __init__(self, scene: Scene, observation: Observation, likelihood: str = DEFAULT_KIND,
                  sd_model: float = DEFAULT_SD_MODEL, max_batch: int = DEFAULT_MAX_BATCH, effects=(),
-                 engine: str = "mjx"):
+                 engine: str = "mjx", pad_to: int | None = None):
         n_traces = 2 * scene.n_objects
         if np.shape(observation.profile)[0] != n_traces:
             raise ValueError(f"observation has {np.shape(observation.profile)[0]} velocity traces, "
@@ -349,7 +352,7 @@ class Problem(BatchedAPI):
         self.effects = scene_effects(scene, effects)
         fps = float(observation.fps)
         n = int(np.shape(observation.profile)[1])
-        n_pad = PAD_SAMPLES * math.ceil(n / PAD_SAMPLES)
+        n_pad = PAD_SAMPLES * math.ceil(max(n, int(pad_to or 0)) / PAD_SAMPLES)
         lik = make_likelihood(observation, likelihood, sd_model, n_samples=n_pad)
         ft = padded_frame_times(observation.frame_times, fps, n_pad)
         self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch, engine)
