@@ -63,6 +63,25 @@ class FitReport:
     timings: dict = field(default_factory=dict)
 
 
+@dataclass
+class Tracked:
+    """A read and tracked video (:func:`track_video`).
+
+    Attributes:
+        video: path of the video.
+        clip: the decoded video (frames, frame rate).
+        observation: the tracked :class:`Observation`.
+        cnn_model: the trained CNN for the scene, when the fit needs one (else None).
+        seconds: wall time of reading and tracking (s).
+    """
+
+    video: Path
+    clip: object
+    observation: Observation
+    cnn_model: object
+    seconds: float
+
+
 def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
     """Add ``estimate`` (the entry's ``key`` value) to each parameter entry of a summary."""
     params = summary_dict["parameters"]
@@ -103,17 +122,15 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     cnn_diag = {} if start is None else {"init": "cnn", "cnn_theta": dict(zip(start.names, map(float, start.theta))),
                                          "cnn_time_s": float(start.time_s), "cnn_model": str(start.model.path)}
     if method == "grad":
-        from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
+        from galileo_jax.inference.grad import fit_grad
 
         if start is None:
-            res = fit_grad(problem, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
-                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
+            res = fit_grad(problem, k_run, **grad_options(cfg))
         else:
             res = fit_grad(problem, k_run, **grad_start_from_cnn(start, problem.space, cfg),
                            jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
-        params, diag = _with_estimate(summary.summarize_grad(res, problem.space), "mean")
-        draws = gauss_newton_draws(res, problem.space, k_sum, cfg.prediction.draws)
-        return params, {**diag, **cnn_diag}, np.asarray(res.theta), draws
+        params, diag, theta, draws = grad_estimate(res, problem.space, k_sum, cfg)
+        return params, {**diag, **cnn_diag}, theta, draws
     if method == "mh":
         from galileo_jax.inference.mh import run_mh
 
@@ -141,6 +158,23 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
         theta = np.array([params[n]["estimate"] if n in params else neutral.get(n, 0.0) for n in problem.space.names])
         return params, diag, theta, None
     raise GalileoError(f"unknown method {method!r}; choose grad, mh, cnn or seed")
+
+
+def grad_options(cfg: FitConfig) -> dict:
+    """``fit_grad`` / ``fit_grad_batch`` options of a fit from the prior: ``cfg.grad``'s starts,
+    screen (at least the starts), Jacobian and LM steps."""
+    return dict(n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
+                jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
+
+
+def grad_estimate(res, space, key, cfg: FitConfig) -> tuple[dict, dict, np.ndarray, np.ndarray]:
+    """A :class:`~galileo_jax.inference.grad.GradResult` as a fit reports it: (parameters dict,
+    diagnostics, theta (d,), ``cfg.prediction.draws`` Gauss-Newton draws (S, d) from ``key``)."""
+    from galileo_jax.inference import summary
+    from galileo_jax.inference.grad import gauss_newton_draws
+
+    params, diag = _with_estimate(summary.summarize_grad(res, space), "mean")
+    return params, diag, np.asarray(res.theta), gauss_newton_draws(res, space, key, cfg.prediction.draws)
 
 
 def cnn_screen(est, space, minimum: float) -> np.ndarray:
@@ -243,6 +277,35 @@ def fit_engine(scene: Scene, cfg: FitConfig) -> str:
     return resolve_engine(cfg, scene_effects(scene, cfg.effects))
 
 
+def track_video(video: Path, scene: Scene, cfg: FitConfig, *, fps: float | None = None, method: str = "grad",
+                init: str = "prior", progress: bool = True) -> Tracked:
+    """Read and track one video (the first stage of :func:`run_fit`).
+
+    For method cnn or init cnn the trained model is found first, so a scene without one fails
+    before tracking.
+
+    Raises:
+        GalileoError: bad video, tracking failure, no CNN for the scene (method cnn or init cnn).
+    """
+    from galileo_jax.observe import observe, read_video
+
+    t = time.perf_counter()
+    clip = read_video(video, fps_override=fps or scene.video.fps)
+    cnn_model = None
+    if method == "cnn" or init == "cnn":  # no trained model for this scene: say so before tracking
+        from galileo_jax.inference.cnn import find_model
+
+        cnn_model = find_model(scene, clip.fps, cfg.cnn.model)
+    obs = observe(clip, scene, progress=progress)
+    return Tracked(Path(video), clip, obs, cnn_model, time.perf_counter() - t)
+
+
+def problem_options(scene: Scene, cfg: FitConfig) -> dict:
+    """:class:`Problem`'s likelihood, sd_model, effects and engine for a fit of ``scene`` with ``cfg``."""
+    return dict(likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects,
+                engine=fit_engine(scene, cfg))
+
+
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
             seed: int = 0, overlay: bool = True, progress: bool = True, init: str = "prior") -> FitReport:
     """Fit one video and write the results (see module docstring).
@@ -263,31 +326,33 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
         GalileoError: bad video, tracking failure, unknown method or likelihood, no CNN for
             the scene (method cnn or init cnn).
     """
-    from galileo_jax.observe import observe, read_video
-
-    timings = {}
-    t = time.perf_counter()
-    clip = read_video(video, fps_override=fps or scene.video.fps)
-    cnn_model = None
-    if method == "cnn" or init == "cnn":  # no trained model for this scene: say so before tracking
-        from galileo_jax.inference.cnn import find_model
-
-        cnn_model = find_model(scene, clip.fps, cfg.cnn.model)
-    obs = observe(clip, scene, progress=progress)
-    timings["observe_s"] = time.perf_counter() - t
-
+    tracked = track_video(video, scene, cfg, fps=fps, method=method, init=init, progress=progress)
     t = time.perf_counter()
     try:
-        problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
-                          effects=cfg.effects, engine=fit_engine(scene, cfg))
+        problem = Problem(scene, tracked.observation, **problem_options(scene, cfg))
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
     parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress, init,
-                                                                       cnn_model)
+                                                                       tracked.cnn_model)
     diagnostics["engine"] = problem.simulator_engine
-    timings["inference_s"] = time.perf_counter() - t
+    timings = {"observe_s": tracked.seconds, "inference_s": time.perf_counter() - t}
+    return finish_fit(tracked, problem, cfg, method=method, parameters=parameters, diagnostics=diagnostics,
+                      theta_best=theta_best, draws=draws, timings=timings, out=out, seed=seed, overlay=overlay,
+                      progress=progress)
 
+
+def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: str, parameters: dict,
+               diagnostics: dict, theta_best: np.ndarray, draws: np.ndarray | None, timings: dict, out: Path,
+               seed: int = 0, overlay: bool = True, progress: bool = True) -> FitReport:
+    """The last stages of :func:`run_fit`: simulate the estimate (d,) and the draws (S, d) over
+    the whole video, predict beyond it, and write ``result.json``, ``profiles.png`` (and
+    ``overlay.mp4`` if ``overlay``) into ``out``; ``timings`` (seconds per stage) is completed.
+
+    Raises:
+        OSError: ``out`` cannot be written.
+    """
+    obs, scene = tracked.observation, problem.scene
     t = time.perf_counter()
     simulated = _simulate_batch(problem, theta_best[None])[0]
     band = None
@@ -298,12 +363,78 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     prediction = _prediction(problem, scene, obs, theta_best, draws, cfg.prediction.tail)
     timings["simulate_and_predict_s"] = time.perf_counter() - t
 
-    report = FitReport(Path(video), scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
+    report = FitReport(tracked.video, scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
                        timings=timings)
     t = time.perf_counter()
-    _write_outputs(report, problem, theta_best, clip, out, cfg, seed, overlay, progress)
+    _write_outputs(report, problem, theta_best, tracked.clip, out, cfg, seed, overlay, progress)
     timings["write_s"] = time.perf_counter() - t
     return report
+
+
+def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: list[Path], fps: float | None = None,
+                  seed: int = 0, overlay: bool = False, progress: bool = True) -> list[FitReport | Exception]:
+    """``run_fit(..., method="grad")`` of several videos of one scene, their fits as one batched
+    computation (:func:`~galileo_jax.inference.batch.fit_grad_batch`, sharded over the local
+    devices when there are several; one call per frame rate among the videos).
+
+    Each video is tracked (:func:`track_video`) and written (:func:`finish_fit`, into its own
+    ``outs[j]``) as ``run_fit`` does, and gets the estimate ``run_fit`` gives it with the same
+    ``seed`` (the same screen, LM and draws; up to floating-point order). Its
+    ``timings["inference_s"]`` is the batch's inference time divided by the videos in it;
+    ``diagnostics["batch_videos"]`` says how many videos were fitted together.
+
+    Args:
+        videos: B video paths.
+        scene: their validated scene.
+        cfg: settings (grad from the prior: ``cfg.grad``'s starts, screen, jacobian, max_steps).
+        outs: B output folders, one per video.
+        fps, seed, overlay, progress: as :func:`run_fit`.
+
+    Returns:
+        B entries in the order of ``videos``: the video's :class:`FitReport`, or the exception
+        that stopped it (tracking failed, the batch's fit failed, writing failed); one video's
+        failure does not stop the others.
+
+    Raises:
+        ValueError: ``outs`` is not one folder per video.
+    """
+    from galileo_jax.inference.batch import batch_problems, fit_grad_batch
+
+    if len(outs) != len(videos):
+        raise ValueError(f"run_fit_batch needs one output folder per video: {len(videos)} videos, {len(outs)} outs")
+    results: list[FitReport | Exception | None] = [None] * len(videos)
+    tracked: dict[int, Tracked] = {}
+    for j, video in enumerate(videos):
+        try:
+            tracked[j] = track_video(video, scene, cfg, fps=fps, progress=progress)
+        except Exception as err:  # noqa: BLE001 - recorded for this video; the others still fit
+            results[j] = err
+    k_run, k_sum = jax.random.split(jax.random.PRNGKey(seed))
+    by_fps: dict[float, list[int]] = {}
+    for j, tr in tracked.items():
+        by_fps.setdefault(float(tr.observation.fps), []).append(j)
+    for members in by_fps.values():
+        t = time.perf_counter()
+        try:
+            problems = batch_problems(scene, [tracked[j].observation for j in members],
+                                      **problem_options(scene, cfg))
+            fits = fit_grad_batch(problems, k_run, **grad_options(cfg))
+        except Exception as err:  # noqa: BLE001 - the batch failed: every video in it records why
+            for j in members:
+                results[j] = GalileoError(str(err)) if isinstance(err, ValueError) else err
+            continue
+        inference_s = (time.perf_counter() - t) / len(members)
+        for j, problem, res in zip(members, problems, fits):
+            try:
+                parameters, diagnostics, theta_best, draws = grad_estimate(res, problem.space, k_sum, cfg)
+                diagnostics.update(engine=problem.simulator_engine, batch_videos=len(members))
+                timings = {"observe_s": tracked[j].seconds, "inference_s": inference_s}
+                results[j] = finish_fit(tracked[j], problem, cfg, method="grad", parameters=parameters,
+                                        diagnostics=diagnostics, theta_best=theta_best, draws=draws,
+                                        timings=timings, out=outs[j], seed=seed, overlay=overlay, progress=progress)
+            except Exception as err:  # noqa: BLE001 - recorded for this video
+                results[j] = err
+    return results
 
 
 def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: Path, cfg: FitConfig, seed: int,
@@ -418,9 +549,7 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     timings["observe_s"] = time.perf_counter() - t
     t = time.perf_counter()
     try:
-        problems = [Problem(s, o, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects,
-                            engine=fit_engine(s, cfg))
-                    for (_, s), o in zip(inputs, observations)]
+        problems = [Problem(s, o, **problem_options(s, cfg)) for (_, s), o in zip(inputs, observations)]
         joint = JointProblem(problems, per_video)
     except ValueError as err:
         raise GalileoError(str(err)) from None

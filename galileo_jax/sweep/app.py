@@ -13,7 +13,9 @@ Each job (:func:`run_job`) writes into its Hydra job folder: ``result.json`` and
 ``profiles.png`` from :func:`~galileo_jax.pipeline.run_fit` (no overlay video) and
 ``job.json``, the record that ``python -m galileo_jax.sweep.gather`` tabulates. A job whose
 fit fails (tracking lost, no CNN for the scene, ...) records ``status: failed`` with the
-one-line message and returns normally, so the other jobs go on.
+one-line message and returns normally, so the other jobs go on. With ``batch: true``, method
+grad's videos of one scene file are fitted in ONE job as one batched computation
+(:func:`run_batch_job`), which writes one record per video in the same format.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ log = logging.getLogger("galileo_jax.sweep")
 #: Parameters a video determines (without a known mass): the job record's estimates and errors.
 IDENTIFIABLE = ("k1", "k2", "phi")
 #: Keys of the sweep config that pick the job or its inputs rather than describe its settings.
-JOB_KEYS = ("video", "method", "videos", "dataset", "scenes", "camera")
+JOB_KEYS = ("video", "method", "videos", "dataset", "scenes", "camera", "batch")
 RECORD = "job.json"
 #: The sweep config's folder (configs/sweep.yaml; configs/fit.yaml merged in, hydra/launcher presets).
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
@@ -144,8 +146,60 @@ def _one_line(err: BaseException) -> str:
     return text if isinstance(err, GalileoError) else f"{type(err).__name__}: {text}"
 
 
+def _new_record(cfg: DictConfig, out: Path, overrides: list[str], index: int) -> dict[str, Any]:
+    """A job record of video ``index`` before its fit: status "running" (see :func:`run_job`)."""
+    variant = " ".join(o for o in overrides if o.split("=", 1)[0].lstrip("+~").split(".")[0] not in JOB_KEYS)
+    return {"status": "running", "message": None, "video": None, "id": None, "setting": None, "scene": None,
+            "method": str(cfg.method), "init": str(cfg.init), "seed": int(cfg.seed), "index": index,
+            "variant": variant, "overrides": overrides, "job_dir": str(out)}
+
+
+def _describe(record: dict, item: VideoItem, scene) -> None:
+    """Fill in the record's video, id, setting and scene (name, file, where from, angle in degrees)."""
+    record.update(video=str(item.video), id=item.id, setting=item.setting,
+                  scene={"name": scene.name, "file": str(item.scene), "from": item.scene_from,
+                         "angle_deg": math.degrees(scene.ramp.angle)})
+
+
+def _record_fit(record: dict, report, item: VideoItem) -> None:
+    """Fill in a finished fit's estimates, errors against the truth, RMSE and timings."""
+    params = _estimates(report.parameters)
+    truth = _truth(item.video)
+    record.update(status="ok", parameters=params, rmse_m_per_s=report.rmse["all"]["rmse"],
+                  timings_s=report.timings, truth=truth,
+                  abs_error=None if truth is None else
+                  {n: abs(float(params[n]["estimate"]) - v) for n, v in truth.items()
+                   if n in params and params[n]["estimate"] is not None})
+
+
+def _record_failure(record: dict, err: BaseException) -> None:
+    """Mark the record failed with the error's one line (and log it, with the traceback if it is not ours)."""
+    record.update(status="failed", message=_one_line(err))
+    if not isinstance(err, GalileoError):
+        log.error("job failed:\n%s", "".join(traceback.format_exception(type(err), err, err.__traceback__)))
+    log.error("error: %s", record["message"])
+
+
+def _job_inputs(cfg: DictConfig, index: int) -> list[VideoItem]:
+    """The sweep's videos, checking that ``index`` is one of them.
+
+    Raises:
+        GalileoError: any error of :func:`inputs_of`, or ``index`` out of range.
+    """
+    items = inputs_of(cfg)
+    if not 0 <= index < len(items):
+        raise GalileoError(f"video={index} is out of range: the sweep has {len(items)} videos (0 to {len(items) - 1})")
+    return items
+
+
+def batched(cfg: DictConfig) -> bool:
+    """Whether the job runs in batched mode: ``batch: true``, method grad, init prior."""
+    return bool(cfg.get("batch")) and str(cfg.method) == "grad" and str(cfg.init) == "prior"
+
+
 def run_job(cfg: DictConfig, out: Path, overrides: list[str] | None = None) -> dict:
-    """Fit the sweep's video ``cfg.video`` with ``cfg.method`` and write ``out/job.json``.
+    """Fit the sweep's video ``cfg.video`` with ``cfg.method`` and write ``out/job.json``
+    (in batched mode, :func:`batched`, :func:`run_batch_job` instead).
 
     Args:
         cfg: the job's composed sweep config.
@@ -165,30 +219,21 @@ def run_job(cfg: DictConfig, out: Path, overrides: list[str] | None = None) -> d
     """
     from galileo_jax.report.results import write_json
 
+    if batched(cfg):
+        return run_batch_job(cfg, out, overrides)
     t0 = time.perf_counter()
-    overrides = list(overrides or [])
     out.mkdir(parents=True, exist_ok=True)
-    variant = " ".join(o for o in overrides if o.split("=", 1)[0].lstrip("+~").split(".")[0] not in JOB_KEYS)
-    record: dict[str, Any] = {"status": "running", "message": None, "video": None, "id": None, "setting": None,
-                              "scene": None, "method": str(cfg.method), "init": str(cfg.init), "seed": int(cfg.seed),
-                              "index": int(cfg.video), "variant": variant, "overrides": overrides,
-                              "job_dir": str(out)}
+    record = _new_record(cfg, out, list(overrides or []), int(cfg.video))
     write_json(out / RECORD, record)
     try:
         check_method(record["method"])
-        items = inputs_of(cfg)
-        if not 0 <= record["index"] < len(items):
-            raise GalileoError(f"video={record['index']} is out of range: the sweep has {len(items)} videos "
-                               f"(0 to {len(items) - 1})")
-        item = items[record["index"]]
+        item = _job_inputs(cfg, record["index"])[record["index"]]
         from galileo_jax.jaxcache import enable_compilation_cache
         from galileo_jax.pipeline import run_fit
         from galileo_jax.scene import load_scene
 
         scene = load_scene(item.scene)
-        record.update(video=str(item.video), id=item.id, setting=item.setting,
-                      scene={"name": scene.name, "file": str(item.scene), "from": item.scene_from,
-                             "angle_deg": math.degrees(scene.ramp.angle)})
+        _describe(record, item, scene)
         settings = fit_config(cfg)
         record["settings"] = settings.model_dump()
         write_json(out / RECORD, record)
@@ -196,21 +241,73 @@ def run_job(cfg: DictConfig, out: Path, overrides: list[str] | None = None) -> d
         fps = None if cfg.get("fps") is None else float(cfg.fps)
         report = run_fit(item.video, scene, settings, method=record["method"], out=out, fps=fps, seed=record["seed"],
                          overlay=False, progress=False, init=record["init"])
-        params = _estimates(report.parameters)
-        truth = _truth(item.video)
-        record.update(status="ok", parameters=params, rmse_m_per_s=report.rmse["all"]["rmse"],
-                      timings_s=report.timings, truth=truth,
-                      abs_error=None if truth is None else
-                      {n: abs(float(params[n]["estimate"]) - v) for n, v in truth.items()
-                       if n in params and params[n]["estimate"] is not None})
+        _record_fit(record, report, item)
     except Exception as err:  # noqa: BLE001 - a failed job is recorded, not raised: the sweep goes on
-        record.update(status="failed", message=_one_line(err))
-        if not isinstance(err, GalileoError):
-            log.error("job failed:\n%s", traceback.format_exc())
-        log.error("error: %s", record["message"])
+        _record_failure(record, err)
     record["wall_s"] = time.perf_counter() - t0
     write_json(out / RECORD, record)
     return record
+
+
+def run_batch_job(cfg: DictConfig, out: Path, overrides: list[str] | None = None) -> dict:
+    """Batched mode (``batch: true``, method grad): the job of the FIRST video of each scene
+    fits every video of the sweep with that scene file as one batched computation
+    (:func:`~galileo_jax.pipeline.run_fit_batch`) and writes one record per video,
+    ``out/video_<index>/job.json`` (with ``result.json`` and ``profiles.png``), the same
+    record :func:`run_job` writes, plus ``batch`` (``job_dir``, ``videos``: the indices
+    fitted together, ``job_wall_s``); its ``wall_s`` is the job's wall time divided by the
+    videos in it. A video whose tracking fails is recorded failed and the others still fit.
+    The other videos' jobs return at once and write nothing.
+
+    Returns:
+        ``{"status": "batch", "records": [...]}`` for the first video's job,
+        ``{"status": "batched", "index", "batch_index"}`` for the others'.
+    """
+    from galileo_jax.report.results import write_json
+
+    t0 = time.perf_counter()
+    index = int(cfg.video)
+    try:
+        items = _job_inputs(cfg, index)
+    except GalileoError:  # recorded as a one-video job does
+        return run_job(OmegaConf.merge(cfg, {"batch": False}), out, overrides)
+    group = [i for i, it in enumerate(items) if it.scene == items[index].scene]
+    if index != group[0]:
+        log.info("video %d (%s) is fitted in the batched job of video %d", index, items[index].id, group[0])
+        return {"status": "batched", "index": index, "batch_index": group[0]}
+    outs = [out / f"video_{i}" for i in group]
+    records = [_new_record(cfg, o, list(overrides or []), i) for i, o in zip(group, outs)]
+    for rec, o in zip(records, outs):
+        rec["batch"] = {"job_dir": str(out), "videos": group}
+        o.mkdir(parents=True, exist_ok=True)
+        write_json(o / RECORD, rec)
+    try:
+        from galileo_jax.jaxcache import enable_compilation_cache
+        from galileo_jax.pipeline import run_fit_batch
+        from galileo_jax.scene import load_scene
+
+        scene = load_scene(items[index].scene)
+        settings = fit_config(cfg)
+        for rec, i, o in zip(records, group, outs):
+            _describe(rec, items[i], scene)
+            rec["settings"] = settings.model_dump()
+            write_json(o / RECORD, rec)
+        enable_compilation_cache()
+        fps = None if cfg.get("fps") is None else float(cfg.fps)
+        results = run_fit_batch([items[i].video for i in group], scene, settings, outs=outs, fps=fps,
+                                seed=int(cfg.seed), overlay=False, progress=False)
+    except Exception as err:  # noqa: BLE001 - recorded for every video of the batch: the sweep goes on
+        results = [err] * len(group)
+    wall = time.perf_counter() - t0
+    for rec, i, o, res in zip(records, group, outs, results):
+        if isinstance(res, Exception):
+            _record_failure(rec, res)
+        else:
+            _record_fit(rec, res, items[i])
+        rec["wall_s"] = wall / len(group)
+        rec["batch"]["job_wall_s"] = wall
+        write_json(o / RECORD, rec)
+    return {"status": "batch", "records": records}
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="sweep")
@@ -240,6 +337,10 @@ def _from_launcher(err: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     """``python -m galileo_jax.sweep [OVERRIDES]``: Hydra's command line; mistakes end in one line."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    given = dict(a.split("=", 1) for a in argv if "=" in a and not a.startswith("-"))
+    given = {k.lstrip("+~"): v for k, v in given.items()}
+    if "video" in given and "true" in given.get("batch", "").lower():  # a batched job fits all its scene's videos
+        raise GalileoError("batch=true fits every video of each scene in one job; drop video=... or use batch=false")
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # let errors reach us (Hydra would print a stack trace)
     saved = sys.argv
     sys.argv = [saved[0] if saved else "galileo_jax.sweep", *argv]
