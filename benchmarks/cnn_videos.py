@@ -68,7 +68,7 @@ def render(i: int, work: Path, seed: int) -> Path:
 def run_methods(video: Path, with_mh: bool) -> dict:
     import jax
 
-    from galileo_jax.config import FitConfig
+    from galileo_jax.config import FitConfig, resolve_engine
     from galileo_jax.inference import Problem, fit_grad, run_mh, summarize_mh
     from galileo_jax.inference import cnn
     from galileo_jax.observe import observe
@@ -79,9 +79,10 @@ def run_methods(video: Path, with_mh: bool) -> dict:
     scene = load_scene(video.with_suffix(".yaml"))
     truth = json.loads(video.with_suffix(".truth.json").read_text())
     obs = observe(video, scene, progress=False)
-    problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model)
+    engine = resolve_engine(cfg)  # what fit runs on: C MuJoCo on a CPU
+    problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, engine=engine)
     model = cnn.find_model(scene, obs.fps)
-    out = {"video": video.name, "truth": {n: truth[n] for n in NAMES}, "runs": {}}
+    out = {"video": video.name, "truth": {n: truth[n] for n in NAMES}, "engine": engine, "runs": {}}
 
     def errors(theta):
         d = dict(zip(problem.space.names, np.asarray(theta, float)))
@@ -138,8 +139,9 @@ def write_tables(work: Path) -> None:
             row["cover90"] = float(np.mean([[r["inside90"][n] for n in NAMES] for r in rs]))
         summary[m] = row
     write_json(RESULTS / f"{name}.json", {"machine": machine, "summary": summary, "records": records})
+    engines = sorted({r.get("engine", "mjx") for r in records})
     lines = [f"# CNN on rendered videos, next to grad and mh ({len(records)} videos, 20 degree scene)", "",
-             f"machine: {machine}", "",
+             f"machine: {machine}; simulation engine of grad and mh: {', '.join(engines)}", "",
              "Command: `python benchmarks/cnn_videos.py` (module docstring). Mean |error| over the videos; "
              "time: median wall time per video, compilation excluded; LM steps: Levenberg-Marquardt steps of all "
              "starts together (median); cover90: share of (video, parameter) pairs whose truth is in the 90% interval.",

@@ -147,15 +147,18 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--compile-batch", type=int, default=16)
     ap.add_argument("--compile-only", action="store_true", help=argparse.SUPPRESS)  # the subprocess' mode
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the committed table's other batch sizes and compile times; measure only --batches")
     args = ap.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     if args.compile_only:
         print(json.dumps(compile_time(args.seconds, args.compile_batch)))
         return 0
-    comp = {"batch": args.compile_batch}
+    old = json.loads((RESULTS / "engines.json").read_text()) if args.merge else None
+    comp = old["compile"] if old else {"batch": args.compile_batch}
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, GALILEO_JAX_CACHE=cache)
-        for label in ("cold", "warm"):
+        for label in () if old else ("cold", "warm"):
             out = subprocess.run([sys.executable, __file__, "--compile-only", "--seconds", str(args.seconds),
                                   "--compile-batch", str(args.compile_batch)], env=env, check=True,
                                  capture_output=True, text=True).stdout
@@ -165,13 +168,18 @@ def main(argv=None) -> int:
 
     enable_compilation_cache()
     rows = measure([int(b) for b in args.batches.split(",")], args.seconds, args.repeats)
+    if old:  # rows measured now replace the committed ones of the same batch size
+        new = {r["batch"] for r in rows}
+        rows = sorted([r for r in old["rows"] if r["batch"] not in new] + rows, key=lambda r: r["batch"])
     machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}"
     import jax
     import mujoco
 
     write_tables({"machine": machine, "jax": jax.__version__, "mujoco": mujoco.__version__,
-                  "command": "python benchmarks/engines.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-                  "seconds": args.seconds, "repeats": args.repeats, "compile": comp, "rows": rows})
+                  "command": (old["command"] + "`, then `" if old else "") + "python benchmarks/engines.py "
+                  + " ".join(argv if argv is not None else sys.argv[1:]),
+                  "seconds": args.seconds, "repeats": old["repeats"] if old else args.repeats, "compile": comp,
+                  "rows": rows})
     return 0
 
 

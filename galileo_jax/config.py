@@ -105,16 +105,23 @@ def resolve_engine(cfg: FitConfig, effects=()) -> str:
     Raises:
         ConfigError: "mujoco" asked for together with ``grad.jacobian: ad``.
     """
-    import jax
-
     from galileo_jax.effects.runtime import has_step_hooks
 
     if cfg.engine == "mujoco" and cfg.grad.jacobian == "ad":
         raise ConfigError("grad.jacobian 'ad' needs derivatives, which the C MuJoCo engine has not; "
                           "use --engine mjx or grad.jacobian fd")
-    if cfg.engine != "auto":
-        return cfg.engine
-    if jax.default_backend() != "cpu" or cfg.grad.jacobian == "ad" or has_step_hooks(effects):
+    return pick_engine(cfg.engine, cfg.grad.jacobian == "ad" or has_step_hooks(effects))
+
+
+def pick_engine(requested: str, needs_mjx: bool = False) -> str:
+    """The engine for a request "auto", "mjx" or "mujoco": "auto" is C MuJoCo on a CPU-only
+    JAX unless ``needs_mjx`` (derivatives, per-step effects), MJX on a GPU
+    (``benchmarks/results/engines.md``). Used by fits (:func:`resolve_engine`) and by CNN training."""
+    import jax
+
+    if requested != "auto":
+        return requested
+    if jax.default_backend() != "cpu" or needs_mjx:
         return "mjx"
     return "mujoco"
 
