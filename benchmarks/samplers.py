@@ -199,9 +199,10 @@ def seed_theta(res, space) -> np.ndarray:
     return np.clip(theta, space.lower, space.upper)
 
 
-def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = False, say=print) -> dict:
-    """Every method on one rendered video (module docstring). ``warm``: the compilation run
-    (mh and the seed's sampler shortened; same compiled programs)."""
+def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = False, say=print,
+              only: set | None = None) -> dict:
+    """Every method on one rendered video (module docstring), or those in ``only``. ``warm``:
+    the compilation run (mh and the seed's sampler shortened; same compiled programs)."""
     import jax
 
     from galileo_jax.inference import fit_grad, run_mh, run_seed_mh, summarize_mh
@@ -231,33 +232,40 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
                                    f"|err| k1 {e['k1']:.4f} k2 {e['k2']:.3f} phi {e['phi']:.3f}, "
                                    f"L1 {run['l1']:.3f} L2 {run['l2']:.4f}, {run['time_s']:.1f} s"), flush=True)
 
-    # random guess: draws from the prior, release at the tracker's estimate
-    guesses = np.array(space.sample_prior(keys["random guess"], s["guesses"]), np.float64)
-    if "dt_release" in space.names:
-        guesses[:, space.names.index("dt_release")] = 0.0
-    done("random guess", {**evaluate(guesses), "draws": len(guesses), "time_s": 0.0, "simulations": 0})
+    def want(*names: str) -> bool:
+        return only is None or any(n in only for n in names)
 
-    steps = 15 if warm else s["seed_steps"]  # run_seed_mh's chunk: one compiled scan
-    t = time.perf_counter()
-    res = run_seed_mh(problem, keys["seed coin-toss MH"], n_chains=s["seed_chains"], n_steps=steps, progress=False)
-    elapsed = time.perf_counter() - t
-    done("seed coin-toss MH", {**evaluate(seed_theta(res, space)), "time_s": elapsed,
-                               "simulations": s["seed_chains"] * (steps + 1),
-                               "best_similarity": float(res.best_similarity),
-                               "acceptance": float(np.mean(res.accepted))})
+    if want("random guess"):  # draws from the prior, release at the tracker's estimate
+        guesses = np.array(space.sample_prior(keys["random guess"], s["guesses"]), np.float64)
+        if "dt_release" in space.names:
+            guesses[:, space.names.index("dt_release")] = 0.0
+        done("random guess", {**evaluate(guesses), "draws": len(guesses), "time_s": 0.0, "simulations": 0})
 
-    n_warmup, n_samples = (40, 20) if warm else (s["mh_warmup"], s["mh_samples"])  # 2 chunks: annealing compiles
-    t = time.perf_counter()
-    res = run_mh(problem, keys["mh"], n_chains=s["mh_chains"], n_warmup=n_warmup, n_samples=n_samples, progress=False)
-    elapsed = time.perf_counter() - t
-    summ = summarize_mh(res, space)
-    par, diag = summ["parameters"], summ["diagnostics"]
-    common = {"time_s": elapsed, "simulations": mh_rollouts(s["mh_chains"], n_warmup, n_samples),
-              "max_rhat": diag["max_rhat"], "min_ess_bulk": diag["min_ess_bulk"],
-              "ess_per_s": diag["min_ess_bulk"] / elapsed, "acceptance": diag["acceptance"]}
-    done("mh", {**evaluate([par[n]["median"] for n in space.names]), **common,
-                "inside90": evaluate.inside({n: par[n]["interval90"] for n in NAMES})})
-    done("mh (best draw)", {**evaluate(res.best_theta), **common, "best_loglik": diag["best_loglik"]})
+    if want("seed coin-toss MH"):
+        steps = 15 if warm else s["seed_steps"]  # run_seed_mh's chunk: one compiled scan
+        t = time.perf_counter()
+        res = run_seed_mh(problem, keys["seed coin-toss MH"], n_chains=s["seed_chains"], n_steps=steps,
+                          progress=False)
+        elapsed = time.perf_counter() - t
+        done("seed coin-toss MH", {**evaluate(seed_theta(res, space)), "time_s": elapsed,
+                                   "simulations": s["seed_chains"] * (steps + 1),
+                                   "best_similarity": float(res.best_similarity),
+                                   "acceptance": float(np.mean(res.accepted))})
+
+    if want("mh", "mh (best draw)"):
+        n_warmup, n_samples = (40, 20) if warm else (s["mh_warmup"], s["mh_samples"])  # 2 chunks: annealing compiles
+        t = time.perf_counter()
+        res = run_mh(problem, keys["mh"], n_chains=s["mh_chains"], n_warmup=n_warmup, n_samples=n_samples,
+                     progress=False)
+        elapsed = time.perf_counter() - t
+        summ = summarize_mh(res, space)
+        par, diag = summ["parameters"], summ["diagnostics"]
+        common = {"time_s": elapsed, "simulations": mh_rollouts(s["mh_chains"], n_warmup, n_samples),
+                  "max_rhat": diag["max_rhat"], "min_ess_bulk": diag["min_ess_bulk"],
+                  "ess_per_s": diag["min_ess_bulk"] / elapsed, "acceptance": diag["acceptance"]}
+        done("mh", {**evaluate([par[n]["median"] for n in space.names]), **common,
+                    "inside90": evaluate.inside({n: par[n]["interval90"] for n in NAMES})})
+        done("mh (best draw)", {**evaluate(res.best_theta), **common, "best_loglik": diag["best_loglik"]})
 
     def grad_run(t0: float, **kw) -> dict:
         res = fit_grad(problem, keys["grad"], jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, **kw)
@@ -266,25 +274,26 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
                 "lm_steps": int(np.sum(res.starts_iterations)), "loglik": float(res.loglik),
                 "inside90": evaluate.inside({n: res.interval90[space.names.index(n)] for n in NAMES})}
 
-    done("grad", grad_run(time.perf_counter(), n_starts=cfg.grad.starts,
-                          n_screen=max(cfg.grad.screen, cfg.grad.starts)))
-
-    if scene.name not in models:
-        try:
-            models[scene.name] = cnn.find_model(scene, obs.fps, cfg.cnn.model)
-        except cnn.CNNError as err:
-            models[scene.name] = err
-    model = models[scene.name]
-    if isinstance(model, Exception):
-        for name in ("cnn", "grad --init cnn"):
-            done(name, {"status": NO_MODEL, "message": str(model)})
-    else:
-        t = time.perf_counter()
-        est = cnn.estimate(model, obs, space, keys["cnn"])
-        elapsed = time.perf_counter() - t
-        done("cnn", {**evaluate(est.theta), "time_s": elapsed, "simulations": 0,
-                     "inside90": evaluate.inside({n: est.interval90[space.names.index(n)] for n in NAMES})})
-        done("grad --init cnn", grad_run(t, **grad_start_from_cnn(est, space, cfg)))
+    if want("grad"):
+        done("grad", grad_run(time.perf_counter(), n_starts=cfg.grad.starts,
+                              n_screen=max(cfg.grad.screen, cfg.grad.starts)))
+    if want("cnn", "grad --init cnn"):
+        if scene.name not in models:
+            try:
+                models[scene.name] = cnn.find_model(scene, obs.fps, cfg.cnn.model)
+            except cnn.CNNError as err:
+                models[scene.name] = err
+        model = models[scene.name]
+        if isinstance(model, Exception):
+            for name in ("cnn", "grad --init cnn"):
+                done(name, {"status": NO_MODEL, "message": str(model)})
+        else:
+            t = time.perf_counter()
+            est = cnn.estimate(model, obs, space, keys["cnn"])
+            elapsed = time.perf_counter() - t
+            done("cnn", {**evaluate(est.theta), "time_s": elapsed, "simulations": 0,
+                         "inside90": evaluate.inside({n: est.interval90[space.names.index(n)] for n in NAMES})})
+            done("grad --init cnn", grad_run(t, **grad_start_from_cnn(est, space, cfg)))
     return {"video": video.name, "scene": scene.name, "engine": getattr(problem, "simulator_engine", "mjx"),
             "truth": {n: float(truth[n]) for n in NAMES},
             "samples": int(problem.n_samples), "observe_s": observe_s, "runs": runs}
@@ -435,6 +444,9 @@ def main(argv=None) -> int:
         ap.add_argument("--" + k.replace("_", "-"), dest=k, type=int, help=f"{what} (default: fit's)")
     ap.add_argument("--engine", help="simulation engine where galileo_jax has several (mjx, mujoco, auto); "
                                      "default: fit's")
+    ap.add_argument("--rerun", default="",
+                    help="comma-separated methods to run again on the videos already recorded (e.g. after "
+                         "retraining the CNN: 'cnn,grad --init cnn'); their runs replace the recorded ones")
     ap.add_argument("--no-warmup", action="store_true",
                     help="skip the compilation warm-up videos (the first video's times then include compilation)")
     args = ap.parse_args(argv)
@@ -455,6 +467,21 @@ def main(argv=None) -> int:
     write_json(kept, s)
     enable_compilation_cache()
     models: dict = {}
+    rerun = {m.strip() for m in args.rerun.split(",") if m.strip()}
+    if rerun - set(METHODS):
+        ap.error(f"--rerun: choose from {', '.join(METHODS)}")
+    for sc in scenes if rerun else ():
+        done = [i for i in range(args.videos) if (work / sc / f"video_{i}.json").exists()]
+        if done and not args.no_warmup:
+            run_video(scene_video(sc, WARMUP_INDEX, work, args.seed), s, 0, models, warm=True, only=rerun)
+        for i in done:
+            path = work / sc / f"video_{i}.json"
+            rec = json.loads(path.read_text())
+            new = run_video(scene_video(sc, i, work, args.seed), s, args.seed * 10_000 + SCENES.index(sc) * 1000 + i,
+                            models, only=rerun)
+            rec["runs"].update(new["runs"])
+            write_json(path, rec)
+            print(f"{sc} video {i + 1}: reran {', '.join(sorted(rerun))}", flush=True)
     for sc in scenes:
         todo = [i for i in range(args.videos) if not (work / sc / f"video_{i}.json").exists()]
         if not todo:
