@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+#: Largest single MJX vmap (see measure).
+MJX_CHUNK = 256
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -82,13 +84,25 @@ def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
     from galileo_jax.simulate_c import rollout_poses, rollout_poses_host
 
     sim, n = _setup(seconds)
-    mjx_fn = jax.jit(jax.vmap(lambda m, k: rollout(sim, PhysParams(m, k), n).pose))
+    one = jax.vmap(lambda m, k: rollout(sim, PhysParams(m, k), n).pose)
+    mjx_fn = jax.jit(one)
+    # One vmap of 4096 MJX rollouts deadlocks on this CPU (jaxlib 0.10.2: every thread idle, as
+    # 64 vmapped LM starts did), and so did lax.map over chunks of 1024; above MJX_CHUNK the batch
+    # runs as lax.map over vmapped chunks, as the project's own map_batch does.
+    def chunked(m, k):
+        split = (m.reshape(-1, MJX_CHUNK, *m.shape[1:]), k.reshape(-1, MJX_CHUNK, *k.shape[1:]))
+        out = jax.lax.map(lambda a: one(*a), split)
+        return out.reshape(-1, *out.shape[2:])
+
+    mjx_chunked = jax.jit(chunked)
     cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, None, n)))
     rows = []
     for b in batches:
         mass, friction = _params(b)
         row = {"batch": b, "n_steps": n}
-        for name, fn in (("mjx", lambda: mjx_fn(mass, friction).block_until_ready()),
+        mjx = mjx_chunked if b > MJX_CHUNK and b % MJX_CHUNK == 0 else mjx_fn
+        row["mjx_chunk"] = MJX_CHUNK if mjx is mjx_chunked else b
+        for name, fn in (("mjx", lambda: mjx(mass, friction).block_until_ready()),
                          ("mujoco", lambda: rollout_poses_host(sim, mass, friction, None, n)),
                          ("mujoco_jit", lambda: cb_fn(mass, friction).block_until_ready())):
             fn()  # compile / warm
@@ -124,7 +138,10 @@ def write_tables(result: dict) -> None:
              f"({result['rows'][0]['n_steps']} steps at dt = 1/240 s), float64. Rollouts per second, best of "
              f"{result['repeats']} (1 for MJX at B >= 1024); C MuJoCo timings include the per-rollout model copies "
              "and mj_setConst. 'in jit': the C engine through jax.pure_callback inside jit(vmap), as the samplers "
-             "call it. Position diff: largest |x, z| difference of the two engines' trajectories (same parameters).",
+             "call it. Position diff: largest |x, z| difference of the two engines' trajectories (same parameters)."
+             + "".join(f" MJX at batch {r['batch']}: lax.map over vmapped chunks of {r['mjx_chunk']} (one vmap of "
+                       "4096, and chunks of 1024, deadlocked: jaxlib 0.10.2 on this CPU, every thread idle)."
+                       for r in result["rows"] if r.get("mjx_chunk", r["batch"]) < r["batch"]),
              "", "| batch | MJX (rollouts/s) | C MuJoCo | C MuJoCo in jit | C / MJX | max position diff (m) | "
                  "median of per-rollout max (m) |",
              "|---|---|---|---|---|---|---|"]
