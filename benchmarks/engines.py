@@ -80,29 +80,21 @@ def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
     import jax
     import numpy as np
 
+    from galileo_jax.inference.problem import map_batch
     from galileo_jax.simulate import PhysParams, rollout
     from galileo_jax.simulate_c import rollout_poses, rollout_poses_host
 
     sim, n = _setup(seconds)
-    one = jax.vmap(lambda m, k: rollout(sim, PhysParams(m, k), n).pose)
-    mjx_fn = jax.jit(one)
     # One vmap of 4096 MJX rollouts deadlocks on this CPU (jaxlib 0.10.2: every thread idle, as
-    # 64 vmapped LM starts did), and so did lax.map over chunks of 1024; above MJX_CHUNK the batch
-    # runs as lax.map over vmapped chunks, as the project's own map_batch does.
-    def chunked(m, k):
-        split = (m.reshape(-1, MJX_CHUNK, *m.shape[1:]), k.reshape(-1, MJX_CHUNK, *k.shape[1:]))
-        out = jax.lax.map(lambda a: one(*a), split)
-        return out.reshape(-1, *out.shape[2:])
-
-    mjx_chunked = jax.jit(chunked)
+    # 64 vmapped LM starts did), and so did chunks of 1024; above MJX_CHUNK the batch runs as
+    # lax.map over vmapped chunks, through the project's own map_batch.
+    mjx_fn = jax.jit(lambda m, k: map_batch(lambda a: rollout(sim, PhysParams(*a), n).pose, (m, k), MJX_CHUNK))
     cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, None, n)))
     rows = []
     for b in batches:
         mass, friction = _params(b)
-        row = {"batch": b, "n_steps": n}
-        mjx = mjx_chunked if b > MJX_CHUNK and b % MJX_CHUNK == 0 else mjx_fn
-        row["mjx_chunk"] = MJX_CHUNK if mjx is mjx_chunked else b
-        for name, fn in (("mjx", lambda: mjx(mass, friction).block_until_ready()),
+        row = {"batch": b, "n_steps": n, "mjx_chunk": min(b, MJX_CHUNK)}
+        for name, fn in (("mjx", lambda: mjx_fn(mass, friction).block_until_ready()),
                          ("mujoco", lambda: rollout_poses_host(sim, mass, friction, None, n)),
                          ("mujoco_jit", lambda: cb_fn(mass, friction).block_until_ready())):
             fn()  # compile / warm

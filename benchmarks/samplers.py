@@ -199,6 +199,11 @@ def seed_theta(res, space) -> np.ndarray:
     return np.clip(theta, space.lower, space.upper)
 
 
+def video_key(seed: int, scene_name: str, i: int) -> int:
+    """The PRNG seed of video ``i`` of ``scene_name`` (the same on a rerun of chosen methods)."""
+    return seed * 10_000 + SCENES.index(scene_name) * 1000 + i
+
+
 def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = False, say=print,
               only: set | None = None) -> dict:
     """Every method on one rendered video (module docstring), or those in ``only``. ``warm``:
@@ -477,7 +482,7 @@ def main(argv=None) -> int:
         for i in done:
             path = work / sc / f"video_{i}.json"
             rec = json.loads(path.read_text())
-            new = run_video(scene_video(sc, i, work, args.seed), s, args.seed * 10_000 + SCENES.index(sc) * 1000 + i,
+            new = run_video(scene_video(sc, i, work, args.seed), s, video_key(args.seed, sc, i),
                             models, only=rerun)
             rec["runs"].update(new["runs"])
             write_json(path, rec)
@@ -497,7 +502,7 @@ def main(argv=None) -> int:
             truth = json.loads(video.with_suffix(".truth.json").read_text())
             print(f"{sc} video {i + 1}/{args.videos}: truth k1 {truth['k1']:.3f} k2 {truth['k2']:.3f} "
                   f"phi {truth['phi']:.3f} (rendered in {render_s:.0f} s)", flush=True)
-            rec = run_video(video, s, args.seed * 10_000 + SCENES.index(sc) * 1000 + i, models)
+            rec = run_video(video, s, video_key(args.seed, sc, i), models)
             rec.update(render_s=render_s, total_s=time.perf_counter() - t)
             write_json(work / sc / f"video_{i}.json", rec)
             print(f"{sc} video {i + 1}/{args.videos} done in {rec['total_s']:.0f} s", flush=True)

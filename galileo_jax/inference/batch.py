@@ -41,7 +41,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from galileo_jax.inference.grad import (MAX_LM_STARTS, GradResult, _lm_solver, gauss_newton_covariance,
-                                        grad_result, latin_hypercube_starts, polish_many)
+                                        grad_result, latin_hypercube_starts, polish_many, residual_jacobian)
 from galileo_jax.inference.problem import (DEFAULT_FD_STEP, Engine, Problem, ProblemData, cached_jit,
                                            check_residual_args, fd_jacobian_fn, map_batch)
 
@@ -147,6 +147,11 @@ def map_videos(engine: Engine, name, fn: Callable, args: tuple, mesh: Mesh | Non
     return cached_jit(engine.key, (name, devices), batched, in_shardings=place, out_shardings=place)(*args)
 
 
+def _logliks(engine: Engine) -> Callable:
+    """Pure ``f(zs (C, d), data) -> (C,)``: one video's log-likelihood (nats) at C points in z."""
+    return lambda zs, d: map_batch(lambda z: engine.loglik_z(z, d), zs, engine.max_batch)
+
+
 def solve_batch(engine: Engine, z_cand: jax.Array, data: ProblemData, *, n_starts: int, jacobian: str = "fd",
                 fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4, max_steps: int = 40,
                 mesh: Mesh | None = None) -> BatchSolve:
@@ -171,17 +176,18 @@ def solve_batch(engine: Engine, z_cand: jax.Array, data: ProblemData, *, n_start
     if not 1 <= n_starts <= n_cand:
         raise ValueError(f"n_starts must be in 1..{n_cand} (the screened points), got {n_starts}")
     res_fn = fd_jacobian_fn(engine.residuals_z, fd_step) if jacobian == "fd" else engine.residuals_z
-    res_fd = fd_jacobian_fn(engine.residuals_z, fd_step)
+    jac_fd = residual_jacobian(fd_jacobian_fn(engine.residuals_z, fd_step))
     solve = _lm_solver(res_fn, rtol, atol, max_steps)
+    logliks = _logliks(engine)
 
     def one(zc, d):
-        ll = map_batch(lambda z: engine.loglik_z(z, d), zc, engine.max_batch)
+        ll = logliks(zc, d)
         _, idx = jax.lax.top_k(jnp.where(jnp.isfinite(ll), ll, -jnp.inf), n_starts)
         z0 = zc[idx]
         z_end, cost, steps, ok, codes = solve(z0, d)
         cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
         best = jnp.argmin(cost)
-        jac = jax.jacfwd(lambda z: res_fd(z, d))(z_end[best])
+        jac = jac_fd(z_end[best], d)
         return BatchSolve(z0, z_end, cost, steps, ok, codes, best, jac)
 
     b = jax.tree_util.tree_leaves(data)[0].shape[0]
@@ -255,15 +261,14 @@ def fit_grad_batch(problems: Sequence[Problem], key: jax.Array, *, n_starts: int
 
         def loglik(pts):  # (B, points, d) -> (B, points): one sharded batch of rollouts
             pts = _pad_videos(jnp.asarray(pts, jnp.float64), b_pad)
-            f = lambda zs, d: map_batch(lambda z: engine.loglik_z(z, d), zs, engine.max_batch)  # noqa: E731
-            return np.asarray(map_videos(engine, ("batch_loglik", pts.shape[1]), f, (pts, data), mesh))[:b]
+            return np.asarray(map_videos(engine, ("batch_loglik", pts.shape[1]), _logliks(engine), (pts, data),
+                                         mesh))[:b]
 
         z_pol, cost_pol = polish_many(loglik, jax.random.fold_in(key, 7), z_hat, cost_best, cov_z, norm,
                                       rounds=polish_rounds, points=polish_points)
         moved = cost_pol < cost_best
         if moved.any():
-            res_fd = fd_jacobian_fn(engine.residuals_z, fd_step)
-            jac_fn = lambda z, d: jax.jacfwd(lambda zz: res_fd(zz, d))(z)  # noqa: E731
+            jac_fn = residual_jacobian(fd_jacobian_fn(engine.residuals_z, fd_step))
             jac = np.asarray(map_videos(engine, ("batch_jacobian", fd_step), jac_fn,
                                         (_pad_videos(jnp.asarray(z_pol), b_pad), data), mesh))[:b]
             for j in np.flatnonzero(moved):

@@ -49,7 +49,7 @@ inside the bounds.
 from __future__ import annotations
 
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -205,6 +205,13 @@ def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None) -> tuple:
     return tuple(jnp.asarray(np.concatenate(p)) for p in zip(*parts))
 
 
+def residual_jacobian(res_fn: Callable) -> Callable:
+    """Pure ``jac(z (d,), data) -> (R, d)``: the Jacobian of ``res_fn(z, data)`` at z
+    (``jacfwd``; with :func:`~galileo_jax.inference.problem.fd_jacobian_fn`'s residuals, the
+    finite-difference Jacobian)."""
+    return lambda z, data: jax.jacfwd(lambda zz: res_fn(zz, data))(z)
+
+
 def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
     """Pure ``solve(z0s (S, d), data)``: vmapped Levenberg-Marquardt from S starts."""
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
@@ -337,7 +344,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     cost = np.where(np.isfinite(cost), cost, np.inf)
     best = int(np.argmin(cost))
     z_hat = z_end[best]
-    jac_fn = problem.jitted(("jacobian_fd", fd_step), lambda z, data: jax.jacfwd(lambda zz: res_fd(zz, data))(z))
+    jac_fn = problem.jitted(("jacobian_fd", fd_step), residual_jacobian(res_fd))
     jac = np.asarray(jac_fn(z_hat, problem.data), np.float64)
     cov_z = gauss_newton_covariance(jac)
     best_cost = float(cost[best])
