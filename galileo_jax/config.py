@@ -26,12 +26,14 @@ class _Strict(BaseModel):
 
 class MHConfig(_Strict):
     """Random-walk Metropolis-Hastings: chains advanced together, warm-up and kept steps
-    (``warmup_cnn``: warm-up when the chains start from the CNN, ``--init cnn``)."""
+    (``warmup_cnn``: warm-up when the chains start from the CNN, ``--init cnn``), and the
+    probability of a population-wide jump proposal (``jump``, :func:`~galileo_jax.inference.mh.run_mh`)."""
 
     chains: int = Field(16, ge=2, le=1024)
     warmup: int = Field(300, ge=0)
-    warmup_cnn: int = Field(300, ge=0)
+    warmup_cnn: int = Field(100, ge=0)
     samples: int = Field(400, ge=10)
+    jump: float = Field(0.5, ge=0.0, lt=1.0)
 
 
 class SeedMHConfig(_Strict):

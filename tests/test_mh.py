@@ -66,6 +66,35 @@ def test_random_walk_recovers_2d_gaussian():
     assert 0.25 < float(acc.mean()) < 0.45
 
 
+def test_mixture_proposal_keeps_the_target_and_crosses_modes():
+    """A (K, d, d) scale is a mixture of random walks: with a wide component the chains cross
+    between two narrow modes 27 SDs apart and split evenly between them (the target is kept);
+    with the narrow component alone they stay where they started."""
+    def logp(x):  # 0.5 N(-4, 0.3^2) + 0.5 N(4, 0.3^2)
+        return jnp.logaddexp(-0.5 * ((x[..., 0] + 4) / 0.3) ** 2, -0.5 * ((x[..., 0] - 4) / 0.3) ** 2)
+
+    scale = jnp.array([[[0.5]], [[8.0]]])
+
+    def run(weights):
+        alg = random_walk(logp, scale, dim=1, weights=weights)
+        state = alg.init(jnp.full((256, 1), -4.0))
+
+        def body(s, k):
+            s, info = alg.step(k, s)
+            return s, (s.position, info.component)
+
+        _, (xs, comp) = jax.jit(lambda k: jax.lax.scan(body, state, jax.random.split(k, 1500)))(jax.random.key(4))
+        return np.asarray(xs[500:, :, 0]), np.asarray(comp)
+
+    xs, comp = run(jnp.array([0.7, 0.3]))
+    assert abs(float((comp == 1).mean()) - 0.3) < 0.01
+    assert abs(float((xs > 0).mean()) - 0.5) < 0.05
+    right = xs[xs > 0]
+    assert abs(right.mean() - 4.0) < 0.05 and abs(right.std() - 0.3) < 0.03
+    xs, comp = run(jnp.array([1.0, 0.0]))
+    assert not (comp == 1).any() and (xs < 0).all()
+
+
 def test_random_walk_rejects_bad_scale():
     with pytest.raises(ValueError, match="scale"):
         random_walk(lambda x: -jnp.sum(x**2, -1), jnp.ones(3), dim=2)
@@ -115,6 +144,27 @@ def test_run_mh_rejects_bad_arguments():
         run_mh(toy, jax.random.key(0), init_theta=np.array([0.2, 0.3]))
     with pytest.raises(ValueError, match="outside"):
         run_mh(toy, jax.random.key(0), init_theta=np.array([0.2, 1.3, 0.0]))
+    with pytest.raises(ValueError, match="jump"):
+        run_mh(toy, jax.random.key(0), jump=1.0)
+    with pytest.raises(ValueError, match="adapt"):
+        run_mh(toy, jax.random.key(0), adapt="history")
+
+
+def test_mixing_warning_names_unmixed_parameters():
+    """R-hat above 1.1 on an identifiable sampled parameter gives one warning line naming it;
+    unidentifiable masses and known values are not judged; the console summary prints it."""
+    from galileo_jax.inference.summary import RHAT_LIMIT, mixing_warning
+    from galileo_jax.report.console import _parameter_lines
+
+    params = {"k1": {"rhat": 1.02, "identifiable": True, "known": False, "interval90": [0.1, 0.2], "median": 0.15},
+              "k2": {"rhat": 1.64, "identifiable": True, "known": False, "interval90": [0.2, 0.4], "median": 0.3},
+              "m1": {"rhat": 3.0, "identifiable": False, "known": False, "interval90": [0.1, 0.9], "median": 0.5}}
+    text = mixing_warning(params)
+    assert RHAT_LIMIT == 1.1 and "k2 1.64" in text and "k1" not in text and "m1" not in text
+    assert any(line.strip() == text for line in _parameter_lines(params))
+    params["k2"]["rhat"] = 1.05
+    assert mixing_warning(params) is None
+    assert not any("warning" in line for line in _parameter_lines(params))
 
 
 # ---------------------------------------------------------------------------- the seed's sampler

@@ -91,6 +91,25 @@ def _effect_note(name: str) -> str:
     return ""
 
 
+#: R-hat above which a sampled parameter's chains count as not mixed (Gelman et al., Bayesian
+#: Data Analysis, 3rd ed., 11.4: "below 1.1"; Vehtari et al. 2021 ask for 1.01 with 4 chains).
+RHAT_LIMIT = 1.1
+
+
+def mixing_warning(parameters: dict) -> str | None:
+    """One line naming the identifiable sampled parameters whose R-hat exceeds :data:`RHAT_LIMIT`,
+    with what it means and what to do; None when every R-hat is below it (or none was computed)."""
+    bad = {n: p["rhat"] for n, p in parameters.items()
+           if p.get("identifiable", True) and not p.get("known") and p.get("rhat") is not None
+           and np.isfinite(p["rhat"]) and p["rhat"] > RHAT_LIMIT}
+    if not bad:
+        return None
+    names = ", ".join(f"{n} {r:.2f}" for n, r in bad.items())
+    return (f"warning: R-hat above {RHAT_LIMIT} ({names}): the chains have not mixed, so the intervals may be too "
+            "narrow. The log-likelihood is rough around contact events (the simulated impact responds "
+            "pseudo-randomly to small parameter changes); raise mh.samples or mh.chains, or compare with --method grad")
+
+
 def _known(value: float, **kw) -> dict:
     return _entry(mean=value, median=value, sd=0.0, interval90=[value, value], best=value, known=True, **kw)
 
@@ -165,6 +184,7 @@ def summarize_mh(result, space: ParamSpace, key: jax.Array | None = None) -> dic
         "max_rhat": float(max(params[n]["rhat"] for n in sampled)) if sampled else None,
         "min_ess_bulk": float(min(params[n]["ess_bulk"] for n in sampled)) if sampled else None,
         "seconds_per_step": float(result.seconds_per_step), "best_loglik": float(loglik[ibest]),
+        "rhat_ok": mixing_warning(params) is None,
     }
     return {"method": "mh", "parameters": params, "diagnostics": diagnostics}
 

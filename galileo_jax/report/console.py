@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from galileo_jax.inference.summary import mixing_warning
 from galileo_jax.pipeline import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
@@ -31,7 +32,8 @@ def _parameter_lines(parameters: dict) -> list[str]:
         rhat = _fmt(p.get("rhat")) if p.get("rhat") is not None else ""
         ess = f"{p['ess_bulk']:.0f}" if p.get("ess_bulk") is not None else ""
         lines.append(f"  {name:<14}{_fmt(p.get('estimate', p.get('mean'))):>10}{iv:>22}{rhat:>8}{ess:>8}   {note}")
-    return lines
+    warning = mixing_warning(parameters)
+    return lines + ([f"  {warning}"] if warning else [])
 
 
 def _rmse_lines(rmse: dict, indent: str = "    ") -> list[str]:
