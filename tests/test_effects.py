@@ -207,6 +207,9 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose():
     assert d["rmse_final"] < 1.3 * d["noise_floor"]
     search = diag.final.search  # the refit's CMA-ES search ran and can only have raised log L
     assert search["evaluations"] > 1 and search["loglik"] >= search["loglik_lm"] - 1e-9
+    polish = diag.final.polish  # so did the named model's second search
+    assert polish["evaluations"] > 1 and polish["loglik"] >= polish["loglik_lm"] - 1e-9
+    assert diag.final.loglik >= search["loglik"] - 1e-9
     # the base fit's residuals were flagged, the final ones look like noise
     assert not diag.fits[0].criticism["looks_like_noise"]
     assert diag.final.criticism["looks_like_noise"]
