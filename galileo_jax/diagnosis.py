@@ -247,8 +247,8 @@ class ModelFit:
         search: a refit's CMA-ES search after LM (:func:`fit_model`): generations, evaluations,
             log-likelihoods of LM's end, of the search's best point and of the result, the
             RMSE at LM's end (m/s), whether it was used, time; None when no search ran.
-        polish: the named model's second search (:func:`polish`), with the RMSE before and
-            after (m/s) when it was used; None for the other models.
+        polish: the named model's second search (:func:`polish`), with the RMSE before
+            (``rmse_lm``) and after (``rmse``, m/s) when it was used; None for the other models.
     """
 
     name: str
@@ -475,10 +475,11 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
 
 
 def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettings, key, generations: int,
-                   sigma: float) -> tuple[GradResult, dict]:
+                   sigma: float, rmse_lm: float | None = None) -> tuple[GradResult, dict]:
     """CMA-ES from ``res``'s estimate (``generations`` of ``settings.search_popsize``, initial step
     ``sigma`` in z), then LM again from its best point if that is better; returns the better
-    result and a record of the search (log-likelihoods of LM's end, of the search and of the result)."""
+    result and a record of the search (log-likelihoods of LM's end, of the search and of the result,
+    and, when the search's point is used, the RMSE at LM's end: ``rmse_lm`` if known, else one rollout)."""
     found = cma_search(union.problem, res.theta, sigma=sigma, popsize=settings.search_popsize,
                        generations=generations, seed=int(jax.random.randint(key, (), 0, 2**30)), fixed=held)
     search = {"method": "CMA-ES (pycma)", "generations": found.generations, "evaluations": found.evaluations,
@@ -487,7 +488,7 @@ def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettin
         again = fit_grad(union.problem, jax.random.fold_in(key, 1), n_starts=0, n_screen=0, init=found.theta,
                          fixed=held, max_steps=settings.max_steps)
         if again.loglik > res.loglik:
-            search.update(used=True, rmse_lm=union_rmse(union, res.theta))
+            search.update(used=True, rmse_lm=union_rmse(union, res.theta) if rmse_lm is None else rmse_lm)
             res = again
     search["loglik"] = res.loglik
     return res, search
@@ -498,16 +499,16 @@ def polish(fit: ModelFit, settings: DiagnoseSettings, key) -> ModelFit:
     generations from its estimate, with half the refit's initial step, then LM; the better of the
     two fits (by log-likelihood) is returned, with the second search recorded in ``polish``. Runs
     after the decision, so it changes the reported fit, never which effect is named."""
-    if settings.winner_search <= 0 or fit.result is None:
+    if settings.winner_search <= 0:
         return fit
     held = fit.union.held(fit.effects) or None
     res, search = search_then_lm(fit.union, fit.result, held, settings, key, settings.winner_search,
-                                 settings.search_sigma / 2)
+                                 settings.search_sigma / 2, rmse_lm=fit.rmse)
     if not search["used"]:
         fit.polish = search
         return fit
     better = evaluate(fit.union, res, fit.effects, settings)
-    better.search, better.polish = fit.search, {**search, "rmse_before": fit.rmse, "rmse": better.rmse}
+    better.search, better.polish = fit.search, {**search, "rmse": better.rmse}
     return better
 
 

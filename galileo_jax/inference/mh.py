@@ -65,6 +65,9 @@ from galileo_jax.inference.problem import map_batch
 
 #: Default target acceptance rate during warm-up (Roberts & Rosenthal 2001).
 TARGET_ACCEPTANCE = 0.3
+#: Random-walk scale: proposal covariance (RW_SCALE^2 / d) Sigma for a d-dimensional posterior
+#: of covariance Sigma (Roberts, Gelman & Gilks 1997; Gelman et al., BDA3 12.2).
+RW_SCALE = 2.38
 
 
 class RWState(NamedTuple):
@@ -354,8 +357,8 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
     # The initial density is -inf, so the first step accepts the first (finite) proposal
     # around z0: no separate compiled evaluation is needed.
     state = RWState(z0, jnp.full((n_chains,), -jnp.inf, jnp.float64))
-    sigma = np.eye(d) * init_sd**2 * d / 2.38**2  # s = 2.38 / sqrt(d) then gives SD init_sd
-    log_s = math.log(2.38 / math.sqrt(d))
+    sigma = np.eye(d) * init_sd**2 * d / RW_SCALE**2  # s = RW_SCALE / sqrt(d) then gives SD init_sd
+    log_s = math.log(RW_SCALE / math.sqrt(d))
     beta = 1.0
     n_resets, n_resampled, warm_acc = 0, 0, float("nan")
     rng = np.random.default_rng(int(jax.random.randint(k_jit, (), 0, 2**31 - 1)))
@@ -398,22 +401,21 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
         state = set_beta(state, beta, new_beta)
         beta = new_beta
         state, (trace, info) = run_chunk(keys[c], state, chol_of(sigma, log_s), weights_now(), jnp.float64(beta))
-        acc = np.asarray(info.acceptance_rate)[1 if c == 0 else 0:]  # (chunk, chains)
-        local = np.asarray(info.component)[1 if c == 0 else 0:] == 0
+        skip = 1 if c == 0 else 0  # the very first step leaves the -inf start: not a real move
+        acc = np.asarray(info.acceptance_rate)[skip:]  # (chunk, chains)
+        local = np.asarray(info.component)[skip:] == 0
         warm_acc = float(acc[local].mean()) if local.any() else float(acc.mean())
         log_s += float(np.clip(0.7 * math.log((warm_acc + 0.01) / (target_acceptance + 0.01)), -2.0, 1.0))
-        pos = np.transpose(np.asarray(trace.position, np.float64), (1, 0, 2))  # (chains, chunk, d)
+        pos = np.transpose(np.asarray(trace.position, np.float64), (1, 0, 2))[:, skip:]  # (chains, chunk, d)
+        pop = _population_cov(pos) if chunk > 2 and (jump > 0 or adapt == "population") else None
         if warm_acc > 0.05 and chunk > 2:
-            cov_fn = _population_cov if adapt == "population" else _pooled_within_cov
-            new = cov_fn(pos[:, 1:] if c == 0 else pos)
+            new = pop if adapt == "population" else _pooled_within_cov(pos)
             if np.all(np.isfinite(new)) and np.linalg.eigvalsh(new).min() > 0:
                 # keep the overall size in log_s: Sigma only carries the shape (correlations, ratios)
                 geo = lambda a: np.exp(np.mean(np.log(np.linalg.eigvalsh(a))))  # noqa: E731
                 sigma = new * (geo(sigma) / geo(new))
-        if jump > 0 and chunk > 2:
-            pop = _population_cov(pos[:, 1:] if c == 0 else pos) * 2.38**2 / d + 1e-12 * np.eye(d)
-            if np.all(np.isfinite(pop)):
-                jump_chol = np.linalg.cholesky(pop)
+        if jump > 0 and pop is not None and np.all(np.isfinite(pop)):
+            jump_chol = np.linalg.cholesky(pop * RW_SCALE**2 / d + 1e-12 * np.eye(d))
         if beta == 1.0 and c < 0.75 * n_warm_chunks and np.isfinite(reset_threshold):
             ld = np.asarray(state.logdensity, np.float64)
             best = np.max(np.where(np.isfinite(ld), ld, -np.inf))
