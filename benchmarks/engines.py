@@ -89,13 +89,13 @@ def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
     # 64 vmapped LM starts did), and so did chunks of 1024; above MJX_CHUNK the batch runs as
     # lax.map over vmapped chunks, through the project's own map_batch.
     mjx_fn = jax.jit(lambda m, k: map_batch(lambda a: rollout(sim, PhysParams(*a), n).pose, (m, k), MJX_CHUNK))
-    cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, None, n)))
+    cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, n)))
     rows = []
     for b in batches:
         mass, friction = _params(b)
         row = {"batch": b, "n_steps": n, "mjx_chunk": min(b, MJX_CHUNK)}
         for name, fn in (("mjx", lambda: mjx_fn(mass, friction).block_until_ready()),
-                         ("mujoco", lambda: rollout_poses_host(sim, mass, friction, None, n)),
+                         ("mujoco", lambda: rollout_poses_host(sim, mass, friction, n)),
                          ("mujoco_jit", lambda: cb_fn(mass, friction).block_until_ready())):
             fn()  # compile / warm
             best = np.inf

@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                      "(default 6: all shipped ones)")
     p.add_argument("--max-effects", type=int, default=1, help="effects added one after another at most (default 1)")
     p.add_argument("--alpha", type=float, default=0.05, help="false-alarm rate of 'an effect is missing' (default 0.05)")
+    p.add_argument("--engine", choices=("auto", "mjx", "mujoco"), default="auto",
+                   help="simulation engine: auto (default: C MuJoCo on a CPU except for effects that act every "
+                        "physics step, which run on MJX; MJX on a GPU), mjx, or mujoco (no per-step effects)")
     p.add_argument("--out", help="output folder (default: <first video>_diagnose next to it)")
     p.add_argument("--fps", type=float, help="frame rate override (frames per second)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
@@ -76,10 +79,13 @@ def effects_table() -> str:
 
 def summary_text(diag, videos: list[Path]) -> str:
     """Console report: base verdict, screen, refits with tests, decision, error before/after."""
+    from galileo_jax.diagnosis import ENGINE_NAMES
+
     d = diag.decision
     what = ", ".join(f"{v.name} (scene {s.name})" for v, s in zip(videos, diag.scenes))
     lines = [f"galileo_jax diagnose: {what}", "",
-             f"  base model: RMSE {diag.fits[0].rmse:.3f} m/s (noise floor {diag.noise_floor:.3f} m/s)",
+             f"  base model ({ENGINE_NAMES[diag.fits[0].union.engine]}): RMSE {diag.fits[0].rmse:.3f} m/s "
+             f"(noise floor {diag.noise_floor:.3f} m/s)",
              f"  {diag.fits[0].criticism.get('verdict', '')}", ""]
     for rnd in diag.rounds:
         lines.append(f"  round {rnd['round']} (model: {rnd['base']}); threshold p < {rnd['threshold_p']:.3g}")
@@ -88,11 +94,14 @@ def summary_text(diag, videos: list[Path]) -> str:
             for r in rnd["screen"]:
                 lines.append(f"    {r['effect']:<26}{r['score']:>9.1f}{r['p_value']:>10.2g}{r['grid_gain']:>11.1f}"
                              f"{r['best_value']:>8.3g}")
-        if rnd.get("null_refit"):
-            nr = rnd["null_refit"]
-            lines.append(f"    the {rnd['base']} model, refitted from {nr['from_effect']}'s estimate, found a better optimum "
-                         f"(log L {nr['loglik_before']:.1f} -> {nr['loglik_after']:.1f}, RMSE {nr['rmse_before']:.4f} -> "
-                         f"{nr['rmse_after']:.4f} m/s): the tests below are against it")
+        for tr in rnd.get("transfers", []):
+            lines.append(f"    the {tr['model']} model refitted on {ENGINE_NAMES[tr['engine']]} for the effects that act "
+                         f"every step: RMSE {tr['rmse']:.4f} m/s ({tr['rmse_before']:.4f} on "
+                         f"{ENGINE_NAMES[tr['from_engine']]})")
+        for nr in rnd.get("null_refit", []):
+            lines.append(f"    the {nr['model']} model ({ENGINE_NAMES[nr['engine']]}), refitted from {nr['from_effect']}'s "
+                         f"estimate, found a better optimum (log L {nr['loglik_before']:.1f} -> {nr['loglik_after']:.1f}, "
+                         f"RMSE {nr['rmse_before']:.4f} -> {nr['rmse_after']:.4f} m/s): the tests below are against it")
         if rnd.get("adequate"):
             lines.append(f"    away from contact events the model fits to within "
                          f"{diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor (RMSE "
@@ -107,6 +116,7 @@ def summary_text(diag, videos: list[Path]) -> str:
                             if v.get("interval90") else f"{k} {v['mean']:.3g} (no gain)"
                             for k, v in x["parameters"].items()) or "-"
             mark = "  <- supported" if x["supported"] else ""
+            mark += f"  ({ENGINE_NAMES[x['engine']]})" if "engine" in x else ""
             lines.append(f"    {x['effect']:<26}{x['lr_scaled']:>9.1f}{x['p_value']:>10.2g}{x['rmse_after']:>8.3f}"
                          f"{100 * x['rmse_drop']:>6.0f}%   {est}{mark}")
         if rnd.get("indistinguishable"):
@@ -213,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     observations = [observe(read_video(video, fps_override=args.fps or scene.video.fps), scene, progress=not args.quiet)
                     for video, scene in inputs]
     settings = DiagnoseSettings(candidates=names, refits=args.refits, alpha=args.alpha, max_effects=args.max_effects,
-                                per_video=per_video)
+                                per_video=per_video, engine=args.engine)
     say = None if args.quiet else (lambda msg: print(f"  [{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr))
     try:
         diag = diagnose([s for _, s in inputs], observations, settings, seed=args.seed, progress=say)

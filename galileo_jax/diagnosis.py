@@ -50,14 +50,30 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    The named effect's fit then gets a second, narrower search (:func:`polish`,
    ``winner_search``): it can only improve the reported fit, not change the choice.
 
-One problem for every model. All candidate effects with parameters are simulated in ONE
-problem (the "union"); a model is that problem with the effects it does not contain held at
-their neutral values (:class:`~galileo_jax.inference.fixed.FixedProblem`), which give back the
-base model exactly. The base fit, the screen and every refit therefore share one simulator,
-and all refits of one round one compiled Levenberg-Marquardt program; the observation is an
-argument of those programs, so the next video of the scene compiles nothing. Structural
-effects (no parameter, e.g. ``rolling``) change the model's structure and get a union of
-their own.
+One problem for many models. The candidate effects with parameters of one engine (below) are
+simulated in ONE problem (a "union"); a model is that problem with the effects it does not
+contain held at their neutral values (:class:`~galileo_jax.inference.fixed.FixedProblem`),
+which give back the base model exactly. The screen and the refits in a union therefore share
+one simulator, and all its refits of one round one compiled Levenberg-Marquardt program; the
+observation is an argument of those programs, so the next video of the scene compiles nothing.
+Structural effects (no parameter, e.g. ``rolling``) change the model's structure and get a
+union of their own.
+
+Engines. Every model runs on the engine ``fit`` would use for it (``settings.engine``, default
+"auto": :func:`model_engine`): on a CPU the base model, and the effects that act only through
+model fields, the release velocity or the model's structure (restitution, initial push,
+rolling), run on C MuJoCo; the effects that act every physics step (drags, velocity-dependent
+friction, a user's force law) on MJX, which the open-loop C rollout cannot do; on a GPU all on
+MJX. So the diagnosis's base model is the one ``fit`` reports, and models are only ever
+compared within one engine where the comparison is nested: the base fit (C) is refitted on MJX
+once, by LM from its estimate, before the MJX effects are screened and refitted against it, and
+the null refit of step 5 is done per union. (The two engines agree to 1e-5 m/s while objects
+slide, but not at bouncy impacts: on two of five rendered restitution videos the MJX simulation
+at the true parameters misfit the C-rendered video by 2.3x and 4.5x the noise floor, C MuJoCo
+by 0.4x and 1.0x.) Effects are ranked across engines by their log-likelihood gain over the
+current model on their own engine; a structural effect is compared with the current model by
+Vuong's test, which needs no nesting. On C MuJoCo, where a rollout costs about a tenth of an
+MJX one, the CMA-ES searches are larger (``search_popsize_c``, ``search_generations_c``).
 
 The test likelihood. ``fit``'s likelihood adds a 0.05 m/s model-error floor to the tracking
 noise (robust and smooth for fitting, :mod:`galileo_jax.likelihood`); every model here is
@@ -109,6 +125,7 @@ from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, event_sd
 from galileo_jax.observation import Observation
 from galileo_jax.scene import Scene
 from galileo_jax.simulate import scene_effects
+from galileo_jax.simulate_c import check_supported
 
 
 @dataclass(frozen=True)
@@ -177,6 +194,20 @@ class DiagnoseSettings:
         indistinct_p: Vuong p-value above which two supported effects count as indistinguishable
             (see :func:`indistinguishable` for the RMSE rule that goes with it).
         per_video: with several videos, parameter names fitted per video (besides ``v0``).
+        engine: simulation engine of the models, "auto" (default), "mjx" or "mujoco". "auto"
+            runs every model on the engine ``fit`` would pick for it
+            (:func:`~galileo_jax.config.pick_engine`): on a CPU, C MuJoCo for the base model and
+            for effects that act only through model fields, the release velocity or the
+            model's structure (restitution, initial push, rolling), MJX for effects that act
+            every physics step (drags, velocity-dependent friction, a user's force law); on a
+            GPU, MJX for all. Each effect is tested against the current model refitted on its
+            own engine (module docstring, "Engines").
+        search_popsize_c, search_generations_c: CMA-ES points per generation and generations of
+            every search (refit and second search) on the C engine, where a rollout costs about
+            a tenth of an MJX one (``benchmarks/results/engines.md``); 0 generations switch it off.
+            Measured on rendered restitution videos (C engine, from the same start): 32 x 40
+            reached RMSE 0.0102 / 0.0070 m/s (floor 0.0055 / 0.0042), 64 x 100 0.0020 / 0.0046,
+            in about 20 s.
     """
 
     candidates: tuple[str, ...] | None = None
@@ -202,6 +233,9 @@ class DiagnoseSettings:
     events: bool = True
     sd_test: float = 0.002
     refit_spread: float = 0.25
+    engine: str = "auto"
+    search_popsize_c: int = 64
+    search_generations_c: int = 100
 
 
 @dataclass
@@ -281,8 +315,8 @@ class ModelFit:
         return self.videos[0].poses
 
     def as_dict(self) -> dict:
-        return {"name": self.name, "effects": list(self.effects), "parameters": self.summary["parameters"],
-                "loglik": self.loglik, "rmse_m_per_s": self.rmse,
+        return {"name": self.name, "effects": list(self.effects), "engine": self.union.engine,
+                "parameters": self.summary["parameters"], "loglik": self.loglik, "rmse_m_per_s": self.rmse,
                 "rmse_per_video_m_per_s": [v.rmse for v in self.videos], "iterations": int(self.result.iterations),
                 "converged": bool(self.result.converged), "time_s": float(self.result.time_s),
                 "search": self.search, "polish": self.polish, "criticism": self.criticism}
@@ -364,15 +398,18 @@ class Union:
         settings: likelihood kind and floor, per-video names.
         sd_events: None (no test likelihood yet), or per video the (2n, N-1) event SDs of
             the test likelihood (module docstring; set by :func:`diagnose` from the base fit).
+        engine: the simulation engine of every model in it, "mjx" or "mujoco".
     """
 
-    def __init__(self, scenes, observations, effects, settings: DiagnoseSettings, sd_events=None):
+    def __init__(self, scenes, observations, effects, settings: DiagnoseSettings, sd_events=None,
+                 engine: str = "mjx"):
         self.effects = tuple(effects)
+        self.engine = engine
         self.scenes, self.observations = list(scenes), list(observations)
         self.sd_events = list(sd_events) if sd_events is not None else None
         self.sd_test = settings.sd_test
-        problems = [Problem(s, o, likelihood=settings.likelihood, sd_model=settings.sd_model, effects=self.effects)
-                    for s, o in zip(scenes, observations)]
+        problems = [Problem(s, o, likelihood=settings.likelihood, sd_model=settings.sd_model, effects=self.effects,
+                            engine=engine) for s, o in zip(scenes, observations)]
         self.problems = problems
         self.problem = problems[0] if len(problems) == 1 else JointProblem(problems, settings.per_video)
         owner = {p.name: (e, p) for e in self.effects for p in e.params}
@@ -408,6 +445,39 @@ class Union:
         """{coordinate: neutral value} of the effects NOT in ``free_effects``."""
         free = {j for e in free_effects for j in self.coords.get(e, [])}
         return {n: v for n, v in self.neutral.items() if self.problem.names.index(n) not in free}
+
+    @property
+    def structural(self) -> frozenset[str]:
+        """Names of the structural effects simulated (they change the model even when nothing is freed)."""
+        return frozenset(e.name for e in self.effects if e.structural)
+
+    def theta_from(self, other: "Union", theta: np.ndarray) -> np.ndarray:
+        """``theta`` of a model in ``other`` expressed in this union's coordinates: shared names
+        keep their values, this union's extra effect coordinates take their neutral values.
+
+        Raises:
+            ValueError: a coordinate of this union that is neither in ``other`` nor an effect's.
+        """
+        src = list(other.problem.names)
+        out = []
+        for name in self.problem.names:
+            if name in src:
+                out.append(float(theta[src.index(name)]))
+            elif name in self.neutral:
+                out.append(self.neutral[name])
+            else:
+                raise ValueError(f"coordinate {name!r} has no value in the other model ({src})")
+        return np.asarray(out, np.float64)
+
+
+def model_engine(scenes, effects, settings: DiagnoseSettings) -> str:
+    """The engine of a model with the scenes' own effects plus ``effects``: ``fit``'s rule
+    (:func:`~galileo_jax.config.pick_engine`): MJX if any of them acts every physics step
+    (the C engine's open-loop ``mujoco.rollout`` cannot), else C MuJoCo on a CPU."""
+    from galileo_jax.config import pick_engine
+    from galileo_jax.effects.runtime import has_step_hooks
+
+    return pick_engine(settings.engine, any(has_step_hooks(scene_effects(s, effects)) for s in scenes))
 
 
 def event_sds(base: ModelFit, observations) -> list[np.ndarray]:
@@ -454,9 +524,19 @@ def _adequate_round(rnd_info: dict, current: ModelFit, observations, masks, floo
     return {**rnd_info, "adequate": True, "calm_rmse": rmse_calm, "calm_fraction": fraction}
 
 
+def search_budget(union: Union, settings: DiagnoseSettings, generations: int) -> tuple[int, int]:
+    """(points per generation, generations) of a CMA-ES search in ``union``: ``search_popsize``
+    and ``generations`` on MJX; ``search_popsize_c`` and ``search_generations_c`` on the C engine
+    (0 generations stay 0: the search is off)."""
+    if union.engine == "mujoco":
+        return settings.search_popsize_c, (settings.search_generations_c if generations > 0 else 0)
+    return settings.search_popsize, generations
+
+
 def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, init: np.ndarray | None = None,
-              starts: int | None = None, screen: int | None = None) -> ModelFit:
-    """Fit base + ``free_effects`` inside ``union`` and evaluate it (residuals, profiles, criticism)."""
+              starts: int | None = None, screen: int | None = None, search: bool = True) -> ModelFit:
+    """Fit base + ``free_effects`` inside ``union`` and evaluate it (residuals, profiles, criticism);
+    from ``init``, LM is followed by the CMA-ES search (:func:`search_then_lm`) unless ``search`` is False."""
     free_effects = tuple(free_effects)
     n_starts = settings.base_starts if starts is None else starts
     n_screen = settings.base_screen if screen is None else screen
@@ -464,23 +544,25 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
     res = fit_grad(union.problem, key, n_starts=n_starts, n_screen=max(n_screen, n_starts), init=init,
                    fixed=held, max_steps=settings.max_steps,
                    local_screen=None if init is None else settings.refit_spread)
-    search = None
-    if init is not None and settings.refit_search > 0:  # LM stops in the rough cost's ripples: search on
-        res, search = search_then_lm(union, res, held, settings, key, settings.refit_search, settings.search_sigma)
+    record = None
+    if search and init is not None and search_budget(union, settings, settings.refit_search)[1] > 0:
+        # LM stops in the rough cost's ripples: search on
+        res, record = search_then_lm(union, res, held, settings, key, settings.refit_search, settings.search_sigma)
     fit = evaluate(union, res, free_effects, settings)
-    if search is not None:
-        search.setdefault("rmse_lm", fit.rmse)  # the search's point was not used: LM's end is the fit
-    fit.search = search
+    if record is not None:
+        record.setdefault("rmse_lm", fit.rmse)  # the search's point was not used: LM's end is the fit
+    fit.search = record
     return fit
 
 
 def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettings, key, generations: int,
                    sigma: float, rmse_lm: float | None = None) -> tuple[GradResult, dict]:
-    """CMA-ES from ``res``'s estimate (``generations`` of ``settings.search_popsize``, initial step
+    """CMA-ES from ``res``'s estimate (:func:`search_budget` of ``generations``, initial step
     ``sigma`` in z), then LM again from its best point if that is better; returns the better
     result and a record of the search (log-likelihoods of LM's end, of the search and of the result,
     and, when the search's point is used, the RMSE at LM's end: ``rmse_lm`` if known, else one rollout)."""
-    found = cma_search(union.problem, res.theta, sigma=sigma, popsize=settings.search_popsize,
+    popsize, generations = search_budget(union, settings, generations)
+    found = cma_search(union.problem, res.theta, sigma=sigma, popsize=popsize,
                        generations=generations, seed=int(jax.random.randint(key, (), 0, 2**30)), fixed=held)
     search = {"method": "CMA-ES (pycma)", "generations": found.generations, "evaluations": found.evaluations,
               "loglik_lm": res.loglik, "loglik_search": found.loglik, "time_s": found.time_s, "used": False}
@@ -499,7 +581,7 @@ def polish(fit: ModelFit, settings: DiagnoseSettings, key) -> ModelFit:
     generations from its estimate, with half the refit's initial step, then LM; the better of the
     two fits (by log-likelihood) is returned, with the second search recorded in ``polish``. Runs
     after the decision, so it changes the reported fit, never which effect is named."""
-    if settings.winner_search <= 0:
+    if search_budget(fit.union, settings, settings.winner_search)[1] <= 0:
         return fit
     held = fit.union.held(fit.effects) or None
     res, search = search_then_lm(fit.union, fit.result, held, settings, key, settings.winner_search,
@@ -728,6 +810,7 @@ def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_ind
     n_coords = len(current.union.coords[effect.name]) if effect.params else 0
     test = compare(current, alt, effect, n_coords)
     test["fit_index"] = fit_index
+    test["engine"] = alt.union.engine
     test["supported"] = bool(test["p_value"] < threshold and test["rmse_drop"] >= settings.min_rmse_drop)
     return test
 
@@ -825,6 +908,40 @@ def compare(current: ModelFit, alt: ModelFit, effect: Effect, n_coords: int) -> 
             "parameters": params, "looks_like_noise": bool(alt.criticism.get("looks_like_noise", False))}
 
 
+class Workspace:
+    """The unions of one diagnosis (module docstring, "Engines"): each model lives in the union of
+    its engine and structural effects that holds the effects it is compared with.
+
+    Arguments:
+        scenes, observations: the videos.
+        settings: the diagnosis settings.
+    """
+
+    def __init__(self, scenes, observations, settings: DiagnoseSettings):
+        self.scenes, self.observations, self.settings = list(scenes), list(observations), settings
+        self.unions: list[Union] = []
+        self.sd_events = None
+
+    def union(self, engine: str, effects) -> Union:
+        """A union on ``engine`` simulating ``effects`` and no other structural effect: an existing
+        one that holds them all, else a new one."""
+        effects = tuple(effects)
+        names = {e.name for e in effects}
+        structural = frozenset(e.name for e in effects if e.structural)
+        for u in self.unions:
+            if u.engine == engine and u.structural == structural and names <= {e.name for e in u.effects}:
+                return u
+        u = Union(self.scenes, self.observations, effects, self.settings, sd_events=self.sd_events, engine=engine)
+        self.unions.append(u)
+        return u
+
+    def set_events(self, sd_events) -> None:
+        """Set the test likelihood's event SDs in every union, present and future."""
+        self.sd_events = list(sd_events)
+        for u in self.unions:
+            u.sd_events = self.sd_events
+
+
 def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observation],
              settings: DiagnoseSettings = DiagnoseSettings(), *, seed: int = 0, progress=None) -> Diagnosis:
     """Run the criticism loop on one observation, or on several videos of one setup (module docstring).
@@ -842,7 +959,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         :class:`Diagnosis`.
 
     Raises:
-        GalileoError: unknown candidate names; ValueError from the problem setup or a
+        GalileoError: unknown candidate names or engine; ValueError from the problem setup or a
             mismatch between the numbers of scenes and observations.
     """
     observations = [obs] if isinstance(obs, Observation) else list(obs)
@@ -855,13 +972,16 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
     timings = {}
     per_scene = [candidate_effects(s, settings.candidates) for s in scenes]
     all_candidates = tuple(e for e in per_scene[0] if all(e in c for c in per_scene[1:]))
-    parametric = [e for e in all_candidates if e.params]
-    structural = [e for e in all_candidates if not e.params]
-    say("fitting the base model")
-    union = Union(scenes, observations, parametric, settings)
+    if settings.engine == "mujoco":  # say so before any fit, not after the base fit
+        check_supported([e for s in scenes for e in scene_effects(s, all_candidates)])
+    ws = Workspace(scenes, observations, settings)
+    base_engine = model_engine(scenes, (), settings)
+    say(f"fitting the base model ({ENGINE_NAMES[base_engine]})")
+    union = ws.union(base_engine, [e for e in all_candidates
+                                   if e.params and model_engine(scenes, (e,), settings) == base_engine])
     current = fit_model(union, (), settings, key)
     if settings.events:  # the test likelihood's event SDs come from the base fit (module docstring)
-        union.sd_events = event_sds(current, observations)
+        ws.set_events(event_sds(current, observations))
         current = evaluate(union, current.result, (), settings)
     masks = calm_masks(current, observations)
     fits = [current]
@@ -869,7 +989,6 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
     m = max(len(all_candidates), 1)
     threshold = settings.alpha / m
     rounds, added, final_index = [], [], 0
-    current_union = union
     n_used = [int(np.sum(o.mask)) * 2 * o.n_objects for o in observations]
     floor = pooled_rms([criticism.noise_floor(o) for o in observations], n_used)
     for rnd in range(settings.max_effects):
@@ -877,44 +996,85 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         if not candidates:
             break
         t = time.perf_counter()
+        rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": [], "engines": {},
+                    "transfers": [], "refits": [], "winner": None, "indistinguishable": None, "adequate": False,
+                    "null_refit": []}
+        done = _adequate_round(rnd_info, current, observations, masks, floor, settings)
+        if done is not None:  # nothing left to explain; the screen is reported where it costs no refit
+            say("screening the candidate effects")
+            own = {e.name for e in current.union.effects}
+            done["screen"] = screen_candidates(current.union, current, [
+                e for e in candidates if e.params and e.name in own
+                and model_engine(scenes, tuple(added) + (e.name,), settings) == current.union.engine], settings)
+            timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
+            rounds.append(done)
+            break
+        home = candidate_unions(ws, scenes, candidates, added, settings)
+        rnd_info["engines"] = {n: u.engine for n, u in home.items()}
+        # the current model in every union with parametric candidates (refitted there, from its
+        # estimate, when it lives in another: another engine, or without these effects)
+        currents = {id(current.union): current}
+
+        def current_in(u: Union) -> ModelFit:
+            if id(u) not in currents:
+                say(f"refitting the {current.name} model on {ENGINE_NAMES[u.engine]}")
+                fit = fit_model(u, tuple(added), settings, jax.random.fold_in(key, 100 * rnd + 50 + len(currents)),
+                                init=u.theta_from(current.union, np.asarray(current.result.theta)), starts=0,
+                                search=False)
+                currents[id(u)] = fit
+                rnd_info["transfers"].append({"model": current.name, "engine": u.engine, "loglik": fit.loglik,
+                                              "rmse": fit.rmse, "from_engine": current.union.engine,
+                                              "rmse_before": current.rmse})
+            return currents[id(u)]
+
+        params_by_union: dict[int, tuple[Union, list[Effect]]] = {}
+        for e in candidates:
+            if e.params:
+                params_by_union.setdefault(id(home[e.name]), (home[e.name], []))[1].append(e)
         say(f"screening {len(candidates)} candidate effects")
-        screen = screen_candidates(current_union, current, [e for e in candidates if e.params], settings)
+        screen = []
+        for u, group in params_by_union.values():
+            screen += screen_candidates(u, current_in(u), group, settings)
+        screen.sort(key=lambda r: -r["statistic"])
+        rnd_info["screen"] = screen
         order = list(dict.fromkeys(row["effect"] for row in screen))
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
-        rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": screen,
-                    "refits": [], "winner": None, "indistinguishable": None, "adequate": False, "null_refit": None}
-        done = _adequate_round(rnd_info, current, observations, masks, floor, settings)
-        if done is not None:  # nothing left to explain
-            rounds.append(done)
-            break
+
+        def base_of(effect: Effect) -> ModelFit:  # what an effect is tested against
+            return currents[id(home[effect.name])] if effect.params else current
+
         tests = []
         for i, name in enumerate(chosen):
             effect = available_effects()[name]
-            say(f"refitting with {name} ({i + 1}/{len(chosen)})")
+            u = home[name]
+            say(f"refitting with {name} ({i + 1}/{len(chosen)}, {ENGINE_NAMES[u.engine]})")
             k = jax.random.fold_in(key, 100 * rnd + i)
-            if effect.params:
-                alt_union = current_union
-                init = _refit_init(alt_union, current, effect, screen)
-            else:  # structural: its own union (the model's structure changes), same free effects
-                alt_union = Union(scenes, observations, (effect,) + tuple(parametric), settings,
-                                  sd_events=union.sd_events)
-                init = None
-            fits.append(fit_model(alt_union, tuple(added) + (name,), settings, k, init=init,
+            init = _refit_init(u, base_of(effect), effect, screen) if effect.params else None
+            fits.append(fit_model(u, tuple(added) + (name,), settings, k, init=init,
                                   starts=settings.refit_starts if init is not None else settings.base_starts,
                                   screen=settings.refit_screen))
-            tests.append(test_effect(current, effect, fits, len(fits) - 1, threshold, settings))
+            tests.append(test_effect(base_of(effect), effect, fits, len(fits) - 1, threshold, settings))
         timings[f"round{rnd + 1}_refits_s"] = time.perf_counter() - t
-        better = refit_null(current_union, current, tests, fits, added, settings, jax.random.fold_in(key, 100 * rnd + 99))
-        if better is not None:  # the tests so far were against a null stuck in a worse optimum: redo them
-            rnd_info["null_refit"] = {"from_effect": better[1], "loglik_before": current.loglik,
-                                      "loglik_after": better[0].loglik, "rmse_before": current.rmse,
-                                      "rmse_after": better[0].rmse}
-            say(f"the base fit improved from {better[1]}'s estimate (log L {current.loglik:.1f} -> "
-                f"{better[0].loglik:.1f}); re-testing")
-            current = fits[final_index] = better[0]
-            tests = [test_effect(current, available_effects()[x["effect"]], fits, x["fit_index"], threshold, settings)
-                     for x in tests]
+        improved = False
+        for u, _ in params_by_union.values():  # each union's null at its maximum (refit_null)
+            better = refit_null(u, currents[id(u)], tests, fits, added, settings,
+                                jax.random.fold_in(key, 100 * rnd + 99 + len(rnd_info["null_refit"])))
+            if better is None:
+                continue
+            old = currents[id(u)]
+            rnd_info["null_refit"].append({"from_effect": better[1], "engine": u.engine, "model": old.name,
+                                           "loglik_before": old.loglik, "loglik_after": better[0].loglik,
+                                           "rmse_before": old.rmse, "rmse_after": better[0].rmse})
+            say(f"the {old.name} model ({ENGINE_NAMES[u.engine]}) improved from {better[1]}'s estimate (log L "
+                f"{old.loglik:.1f} -> {better[0].loglik:.1f}); re-testing")
+            currents[id(u)] = better[0]
+            if u is current.union:  # the reported current model itself
+                current = fits[final_index] = better[0]
+            improved = True
+        if improved:  # the tests so far were against a null stuck in a worse optimum: redo them
+            tests = [test_effect(base_of(available_effects()[x["effect"]]), available_effects()[x["effect"]], fits,
+                                 x["fit_index"], threshold, settings) for x in tests]
             done = _adequate_round({**rnd_info, "refits": tests}, current, observations, masks, floor, settings)
             if done is not None:
                 rounds.append(done)
@@ -925,7 +1085,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
             rounds.append(rnd_info)
             break
         win = supported[0]
-        tied = [x for x in supported[1:] if indistinguishable(win, x, fits, current_union, settings)]
+        tied = [x for x in supported[1:] if indistinguishable(win, x, fits, current.union, settings)]
         if tied:
             names = [win["effect"]] + [x["effect"] for x in tied]
             how = ", ".join(f"{available_effects()[n].evidence} ({n})" for n in names)
@@ -940,11 +1100,33 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         say(f"polishing the fit with {win['effect']}")
         fits[win["fit_index"]] = polish(fits[win["fit_index"]], settings, jax.random.fold_in(key, 100 * rnd + 98))
         current = fits[win["fit_index"]]
-        current_union = current.union
         final_index = win["fit_index"]
     timings["total_s"] = time.perf_counter() - t0
     decision = _decision(fits, rounds, added, final_index, floor, threshold, settings.adequate_ratio)
     return Diagnosis(scenes, observations, floor, fits, rounds, decision, timings)
+
+
+#: How the engines are named in progress messages and reports.
+ENGINE_NAMES = {"mjx": "MJX", "mujoco": "C MuJoCo"}
+
+
+def candidate_unions(ws: Workspace, scenes, candidates, added, settings: DiagnoseSettings) -> dict[str, Union]:
+    """{candidate name: the union it is refitted in}: the candidates with parameters grouped by
+    the engine of current + candidate (:func:`model_engine`), one union per group holding the
+    current model's effects and the group; a structural candidate in a union of its own."""
+    have = tuple(resolve_effects(added))
+    groups: dict[str, list[Effect]] = {}
+    home: dict[str, Union] = {}
+    for e in candidates:
+        engine = model_engine(scenes, have + (e,), settings)
+        if e.params:
+            groups.setdefault(engine, []).append(e)
+        else:
+            home[e.name] = ws.union(engine, have + (e,))
+    for engine, group in groups.items():
+        u = ws.union(engine, have + tuple(group))
+        home.update({e.name: u for e in group})
+    return home
 
 
 def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio) -> dict:

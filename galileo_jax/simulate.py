@@ -37,7 +37,8 @@ with contextlib.redirect_stdout(io.StringIO()):
 
 from galileo_jax.effects import BodyState, EffectContext, check_applicable, resolve_effects
 from galileo_jax.effects.runtime import (effect_param_names, forces, frictions, has_step_hooks, initial_velocity,
-                                         make_context, model_updates, neutral_values, split_values)
+                                         make_context, model_updates, neutral_values, split_values,
+                                         surface_frictions)
 from galileo_jax import simulate_c
 from galileo_jax.errors import GalileoError
 from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model, object_poses
@@ -215,8 +216,15 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
     Returns:
         :class:`Trajectory` with ``pose`` of shape (n_steps + 1, n_objects, 3).
     """
-    if sim.engine == "mujoco":
-        return Trajectory(simulate_c.rollout_poses(sim, params.mass, params.friction, params.effects, n_steps), sim.dt)
+    if sim.engine == "mujoco":  # the effects' once-per-rollout hooks here, in JAX; the host only writes them
+        fields, velocity = {}, None
+        if sim.effects:
+            values = params.effects if params.effects is not None else jnp.asarray(neutral_values(sim.effects))
+            vals = split_values(sim.effects, values)
+            fields = model_updates(sim.effects, vals, apply_params(sim, params), sim.ctx)
+            velocity = initial_velocity(sim.effects, vals, sim.ctx)
+        poses = simulate_c.rollout_poses(sim, params.mass, params.friction, n_steps, fields, velocity)
+        return Trajectory(poses, sim.dt)
     model = apply_params(sim, params)
     data0 = sim.data0
     if sim.effects:
@@ -247,13 +255,14 @@ def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_ste
     data0 = data0.replace(qvel=qvel)
     bodies = np.asarray(index.body)
     step_hooks = has_step_hooks(effects)
+    k_surface = surface_frictions(model.pair_friction, ctx, params.friction)
 
     def step(d, _):
         m = model
         if step_hooks:
             state = BodyState(jnp.stack([d.qpos[a:a + 3] for a in index.qpos]),
                               jnp.stack([d.qvel[q:q + 3] for q in index.dof]), params.mass)
-            k = frictions(effects, vals, params.friction, state, ctx)
+            k = frictions(effects, vals, k_surface, state, ctx)
             if k is not None:
                 pf = m.pair_friction
                 for i in range(ctx.n_objects):

@@ -17,8 +17,10 @@ Per rollout b, a copy of the compiled model gets the masses and frictions as
 :func:`galileo_jax.simulate.apply_params` sets them in MJX (``body_mass``, ``body_inertia``
 x m/m0, ``pair_friction``; ``mj_setConst`` recomputes the invweights, as
 :func:`galileo_jax.synth.set_physics` does for the renderer), then the effects' model updates
-and release velocities (:func:`galileo_jax.effects.runtime.apply_c_model`). Effects that act
-every step (forces, velocity-dependent friction) need a state-dependent input that an
+and release velocities. Those are evaluated by the effects' own hooks in JAX, inside ``jit``,
+before the callback (:func:`galileo_jax.simulate.rollout`), and reach the host as arrays:
+the host code runs no JAX (JAX called from inside a host callback can deadlock). Effects that
+act every step (forces, velocity-dependent friction) need a state-dependent input that an
 open-loop ``mujoco.rollout`` cannot take: :func:`check_supported` rejects them.
 """
 
@@ -33,7 +35,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from galileo_jax.effects.runtime import apply_c_model, has_step_hooks, neutral_values
+from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
 from galileo_jax.model import object_poses
 
@@ -60,15 +62,17 @@ def check_supported(effects) -> None:
                            "cannot do; use --engine mjx")
 
 
-def c_models(sim, mass: np.ndarray, friction: np.ndarray, effects: np.ndarray | None
-             ) -> tuple[list[mujoco.MjModel], np.ndarray]:
+def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = None,
+             velocity: np.ndarray | None = None) -> tuple[list[mujoco.MjModel], np.ndarray]:
     """One C model per rollout with its parameters set, and the initial states.
 
     Args:
         sim: a :class:`~galileo_jax.simulate.Simulator`.
         mass: (B, n_objects) masses in kg.
         friction: (B, n_objects) friction coefficients.
-        effects: (B, n_effect_params) effect values, or None (neutral).
+        fields: optional {model field name: (B, ...) values} written after the masses and
+            frictions (the effects' model updates, whole fields).
+        velocity: optional (B, n_objects, 3) release velocities in m/s (the effects').
 
     Returns:
         (models, state0): B ``MjModel`` copies and (B, nstate) full physics states at release.
@@ -81,37 +85,42 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, effects: np.ndarray | 
     data = mujoco.MjData(base)
     nstate = mujoco.mj_stateSize(base, _STATE_SPEC)
     models, state0 = [], np.empty((mass.shape[0], nstate))
-    neutral = neutral_values(sim.effects)
     for b in range(mass.shape[0]):
         m = copy.copy(base)
         mujoco.mj_resetData(m, data)
         set_physics(m, data, index, PhysParams(mass[b], friction[b]))  # as the renderer sets them
-        if sim.effects:
-            values = effects[b] if effects is not None else neutral
-            apply_c_model(sim.effects, values, m, data, index, sim.ctx, friction[b])
+        for name, value in (fields or {}).items():
+            getattr(m, name)[...] = value[b]
+        if velocity is not None:
+            for i, d in enumerate(index.dof):
+                data.qvel[d:d + 3] += velocity[b, i]
         mujoco.mj_getState(m, data, state0[b], _STATE_SPEC)
         models.append(m)
     return models, state0
 
 
-def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, effects: np.ndarray | None,
-                       n_steps: int) -> np.ndarray:
+def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int, fields: dict | None = None,
+                       velocity: np.ndarray | None = None) -> np.ndarray:
     """Batched C MuJoCo rollouts on the host (NumPy in, NumPy out).
 
     Args:
         sim: the simulator.
-        mass, friction: (B, n_objects); effects: (B, n_effect_params) or None.
+        mass, friction: (B, n_objects).
         n_steps: physics steps.
+        fields, velocity: the effects' model updates and release velocities (:func:`c_models`).
 
     Returns:
         (B, n_steps + 1, n_objects, 3) poses: centre x, z (m) and pitch about y (rad), as
         :class:`~galileo_jax.simulate.Trajectory` holds them; non-finite where a rollout diverged.
     """
     if mass.shape[0] > MAX_CALL:  # see MAX_CALL
-        return np.concatenate([rollout_poses_host(sim, mass[i:i + MAX_CALL], friction[i:i + MAX_CALL],
-                                                  None if effects is None else effects[i:i + MAX_CALL], n_steps)
+        def part(a, i):
+            return None if a is None else a[i:i + MAX_CALL]
+        return np.concatenate([rollout_poses_host(sim, mass[i:i + MAX_CALL], friction[i:i + MAX_CALL], n_steps,
+                                                  {k: v[i:i + MAX_CALL] for k, v in (fields or {}).items()},
+                                                  part(velocity, i))
                                for i in range(0, mass.shape[0], MAX_CALL)])
-    models, state0 = c_models(sim, mass, friction, effects)
+    models, state0 = c_models(sim, mass, friction, fields, velocity)
     nthread = os.cpu_count() or 1
     # A fresh thread pool per call: mujoco.rollout's persistent pool crashed (segfault) when
     # called from XLA's host-callback threads with batches of changing size.
@@ -121,28 +130,38 @@ def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, effects: np.
     return object_poses(sim.index, qpos)
 
 
-def rollout_poses(sim, mass: jax.Array, friction: jax.Array, effects: jax.Array | None, n_steps: int) -> jax.Array:
+def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, fields: dict | None = None,
+                  velocity: jax.Array | None = None) -> jax.Array:
     """:func:`rollout_poses_host` as a ``jax.pure_callback`` for one rollout (vmap batches it).
 
     Args:
-        mass, friction: (n_objects,); effects: (n_effect_params,) or None; extra leading
-            (vmapped) axes reach the host as one batch.
+        mass, friction: (n_objects,).
+        n_steps: physics steps (static).
+        fields: optional {model field name: array of the field's shape}, the effects' model
+            updates for this rollout, computed in JAX (:func:`galileo_jax.simulate.rollout`).
+        velocity: optional (n_objects, 3) release velocities in m/s.
+        Extra leading (vmapped) axes of any input reach the host as one batch.
 
     Returns:
         (n_steps + 1, n_objects, 3) float64 poses.
     """
     n = sim.n_objects
     shape = jax.ShapeDtypeStruct((n_steps + 1, n, 3), jnp.float64)
-    eff = effects if effects is not None else jnp.zeros((0,), jnp.float64)
+    names = sorted(fields or {})
+    inputs = [jnp.asarray(mass, jnp.float64), jnp.asarray(friction, jnp.float64)]
+    inputs += [jnp.asarray(fields[k], jnp.float64) for k in names]
+    if velocity is not None:
+        inputs.append(jnp.asarray(velocity, jnp.float64))
+    # each input's own shape, without the leading axes vmap adds (known here, before vmap)
+    own = [np.shape(mass)[-1:], np.shape(friction)[-1:]] + [getattr(sim.mj_model, k).shape for k in names]
+    own += [(n, 3)] if velocity is not None else []
 
-    def host(m, k, e):
-        m, k, e = np.asarray(m, np.float64), np.asarray(k, np.float64), np.asarray(e, np.float64)
-        lead = np.broadcast_shapes(m.shape[:-1], k.shape[:-1], e.shape[:-1])
-        mb = np.broadcast_to(m, lead + (n,)).reshape(-1, n)
-        kb = np.broadcast_to(k, lead + (n,)).reshape(-1, n)
-        eb = np.broadcast_to(e, lead + e.shape[-1:]).reshape(mb.shape[0], e.shape[-1])
-        poses = rollout_poses_host(sim, mb, kb, eb if e.shape[-1] else None, n_steps)
+    def host(*arrays):
+        arrays = [np.asarray(a, np.float64) for a in arrays]
+        lead = np.broadcast_shapes(*(a.shape[:a.ndim - len(o)] for a, o in zip(arrays, own)))
+        flat = [np.broadcast_to(a, lead + tuple(o)).reshape((-1,) + tuple(o)) for a, o in zip(arrays, own)]
+        poses = rollout_poses_host(sim, flat[0], flat[1], n_steps, dict(zip(names, flat[2:2 + len(names)])),
+                                   flat[2 + len(names)] if velocity is not None else None)
         return poses.reshape(lead + (n_steps + 1, n, 3))
 
-    return jax.pure_callback(host, shape, jnp.asarray(mass, jnp.float64), jnp.asarray(friction, jnp.float64),
-                             jnp.asarray(eff, jnp.float64), vmap_method="expand_dims")
+    return jax.pure_callback(host, shape, *inputs, vmap_method="expand_dims")

@@ -94,7 +94,8 @@ from tqdm import tqdm  # noqa: E402
 from galileo_jax import render  # noqa: E402
 from galileo_jax.effects import BodyState, Effect, available_effects, check_applicable, get_effect  # noqa: E402
 from galileo_jax.effects.runtime import (apply_c_model, c_step, effect_param_names, frictions,  # noqa: E402
-                                         has_step_hooks, make_context, neutral_values, split_values)
+                                         has_step_hooks, make_context, neutral_values, split_values,
+                                         surface_frictions)
 from galileo_jax.cli import OneLineParser  # noqa: E402
 from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
 from galileo_jax.model import ModelIndex, build_model, object_start_pose  # noqa: E402
@@ -334,18 +335,24 @@ def ramp_friction_at_rest(scene: Scene, effects, values: Mapping[str, float], fr
 
 def frictions_at_rest(scene: Scene, effects, values: Mapping[str, float], friction) -> np.ndarray:
     """(n_objects, 2) friction coefficients at rest (on the ramp, on the floor) after the
-    effects' ``friction`` hooks (arguments as :func:`ramp_friction_at_rest`)."""
+    effects' ``model`` hooks (e.g. ``ramp_friction``) and ``friction`` hooks (arguments as
+    :func:`ramp_friction_at_rest`)."""
     effects = tuple(effects)
     friction = np.asarray(friction, dtype=float).reshape(-1)
-    if not any(e.friction is not None for e in effects):
+    if not any(e.friction is not None or e.model is not None for e in effects):
         return np.repeat(friction[:, None], 2, axis=1)
     n = scene.n_objects
-    index = build_model(scene, effects=effects)[1]
+    model, index = build_model(scene, effects=effects)
+    data = mujoco.MjData(model)
+    set_physics(model, data, index, PhysParams(np.asarray(model.body_mass[list(index.body)]), friction))
     ctx = make_context(scene, index, 1.0 / 240.0)
+    flat = np.asarray([values[p] for p in effect_param_names(effects)], dtype=float)
+    apply_c_model(effects, flat, model, data, index, ctx)
+    k = surface_frictions(model.pair_friction, ctx, friction)
     pos = np.stack([object_start_pose(scene, i)[0] for i in range(n)])
     state = BodyState(pos, np.zeros((n, 3)), np.ones(n))
-    vals = split_values(effects, np.asarray([values[p] for p in effect_param_names(effects)], dtype=float))
-    return np.asarray(frictions(effects, vals, friction, state, ctx), dtype=float)
+    out = frictions(effects, split_values(effects, flat), k, state, ctx)
+    return np.asarray(k if out is None else out, dtype=float)
 
 
 def degenerate_motion(scene: Scene, motion: Motion) -> str | None:
@@ -515,12 +522,13 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
     limit = n_frames if n_frames is not None else max(rest_frames + 2, int(round(max_seconds * fps)))
     settle = max(1, int(round(settle_seconds * fps)))
     frames = [data.qpos.copy()] * (rest_frames + 1)
-    apply_c_model(effs, values, model, data, index, ctx, k_base)  # release
+    apply_c_model(effs, values, model, data, index, ctx)  # release
+    k_surface = np.asarray(surface_frictions(model.pair_friction, ctx, k_base))
     still = 0
     while len(frames) < limit:
         if step_hooks:
             for _ in range(substeps):
-                c_step(effs, values, model, data, index, ctx, k_base)
+                c_step(effs, values, model, data, index, ctx, k_surface)
         else:  # model updates and release velocity only: plain steps are c_step without hooks
             mujoco.mj_step(model, data, nstep=substeps)
         if not np.all(np.isfinite(data.qpos)):

@@ -197,10 +197,18 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose():
     scene = _scene(two=False, start=1.2)
     truth = PhysParams(jnp.array([0.5]), jnp.array([0.15]), jnp.array([3.0]))
     obs = simulated_observation(scene, truth, duration=1.5, position_sd=1e-3, effects=("test_cubic_drag",), seed=1)
-    settings = DiagnoseSettings(candidates=("test_cubic_drag",), refits=1, base_starts=2, base_screen=32, max_steps=60)
+    # linear drag (joint damping: the C engine on a CPU) competes with the user's force law (MJX only)
+    settings = DiagnoseSettings(candidates=("test_cubic_drag", "linear_drag"), refits=2, base_starts=2,
+                                base_screen=32, max_steps=60)
     diag = diagnose(scene, obs, settings)
     d = diag.decision
     assert d["missing_effects"] == ["test_cubic_drag"], d["message"]
+    if jax.default_backend() == "cpu":  # each model on fit's engine; the base refitted on MJX for the force law
+        rnd = diag.rounds[0]
+        assert diag.fits[0].union.engine == "mujoco" and diag.final.union.engine == "mjx"
+        assert rnd["engines"] == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
+        assert [t["engine"] for t in rnd["transfers"]] == ["mjx"]
+        assert {x["effect"]: x["engine"] for x in rnd["refits"]} == rnd["engines"]
     fitted = diag.final.summary["parameters"]["drag_cubic"]
     assert fitted["interval90"][0] - 0.3 < 3.0 < fitted["interval90"][1] + 0.3
     assert d["rmse_final"] < 0.5 * d["rmse_base"]

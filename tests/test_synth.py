@@ -36,6 +36,7 @@ import pytest
 from galileo_jax import render, synth
 from galileo_jax.calibration import calibration
 from galileo_jax.effects import get_effect
+from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
 from galileo_jax.model import model_index
 from galileo_jax.observation import profile_from_positions
@@ -250,6 +251,11 @@ def test_effect_c_mujoco_matches_mjx(scene, name):
     rms = _rms(c_profile, mjx_profile)
     assert rms < EFFECT_RMS_TOL, (name, rms)
     assert _rms(c_profile, base_profile) > 3 * EFFECT_RMS_TOL, name  # measured 0.09-0.24 m/s
+    if not has_step_hooks([effect]):  # the fit's C engine (hooks in JAX, rollouts on the host)
+        c_sim = make_simulator(scene, FPS, scene_effects(scene, [name]), "mujoco")
+        engine_profile = np.asarray(jax.jit(lambda q: velocity_profile(
+            c_sim, q, jnp.asarray(times), motion.release_time, steps_needed(c_sim, times[-1])))(p))
+        assert _rms(engine_profile, c_profile) < 1e-9, (name, _rms(engine_profile, c_profile))
     # The values may also come as a dict or through effect_values; the neutral value is the base model.
     same = synth.simulate_motion(scene, synth.resolve_params(scene, PARAMS), FPS, EFFECT_REST, EFFECT_FRAMES,
                                  effects=[name], effect_values={effect.params[0].name: EFFECT_VALUES[name]})

@@ -17,7 +17,10 @@ code runs inside the jitted MJX rollout and, on NumPy inputs, in the C MuJoCo re
   so the score screen of :mod:`galileo_jax.diagnose` cannot rank them and they are always
   refitted.
 * ``model(fields, values, ctx)``: once per rollout, return updated model fields (a dict of
-  arrays named as in ``mujoco.MjModel``/``mjx.Model``, e.g. ``pair_solref``).
+  arrays named as in ``mujoco.MjModel``/``mjx.Model``, e.g. ``pair_solref``); ``fields`` already
+  hold the rollout's masses and friction coefficients. Effects with only ``model``,
+  ``initial_velocity``, ``build`` and ``release_delay`` hooks also run on the C MuJoCo engine,
+  which evaluates the hooks in JAX before the host rollout (:mod:`galileo_jax.simulate_c`).
 * ``initial_velocity(values, ctx)``: (n_objects, 3) world linear velocity added at release, m/s.
 * ``force(state, values, ctx)``: (n_objects, 3) world force on each object's centre of mass
   in N, applied every physics step through ``xfrc_applied``.
@@ -81,6 +84,10 @@ class EffectContext:
         downhill: (3,) unit vector down the slope, world frame.
         dt: physics timestep in s.
         object_pair: id of the object-object contact pair, or -1.
+        bodies, dofs: per object its body id and the address of its first free-joint dof
+            (the three translational dofs, world frame, come first).
+        ramp_pairs, floor_pairs: per object the id of its contact pair with the ramp (-1 if it
+            starts on the floor) and with the floor; ``pair_friction[id, 0]`` is its sliding friction there.
     """
 
     n_objects: int
@@ -90,6 +97,10 @@ class EffectContext:
     downhill: tuple[float, float, float]
     dt: float
     object_pair: int
+    bodies: tuple[int, ...] = ()
+    dofs: tuple[int, ...] = ()
+    ramp_pairs: tuple[int, ...] = ()
+    floor_pairs: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)

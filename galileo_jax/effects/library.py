@@ -16,6 +16,12 @@ rolling            round objects roll: true radius, I = alpha m r^2     (none: s
 velocity_friction  k(v) = k + s (|v| - 0.5 m/s) (rate-dependent)         dk_dv s/m           0
 =================  ===================================================  ==================  =======
 
+How each acts in the simulator: quadratic drag and velocity-dependent friction every physics
+step (a force through ``xfrc_applied``, a friction hook), so they need the MJX engine; linear
+drag as joint damping, restitution as the impact's ``solref``, ramp friction as the ramp pairs'
+friction (model fields, once per rollout), initial push as a release velocity and rolling as a
+change of the model's structure: these run on C MuJoCo too (:mod:`galileo_jax.simulate_c`).
+
 (a) In a fit, the pushed object leaves ``v0 / a`` (a = g (sin theta - k1 cos theta), smoothly
 capped at 0.15 s) after the fitted release time: the release time keeps its base-model meaning (when a
 push-free slide would have started), so v0 does not trade off against it (``release_delay``
@@ -51,8 +57,15 @@ def _quadratic_force(state, values, ctx):
     return -values[0] * jnp.asarray(state.mass)[:, None] * speed * v
 
 
-def _linear_force(state, values, ctx):
-    return -values[0] * jnp.asarray(state.mass)[:, None] * jnp.asarray(state.vel)
+def _linear_damping(fields, values, ctx):
+    # F = -b m v as joint damping of each object's three translational (world-frame) free-joint
+    # dofs: d = b m. MuJoCo applies it as the passive force -d qvel and, in its Euler integrator,
+    # implicitly (C MuJoCo and MJX alike), so it is a model field and runs on both engines.
+    damping = jnp.asarray(fields["dof_damping"])
+    mass = jnp.asarray(fields["body_mass"])
+    for b, d in zip(ctx.bodies, ctx.dofs):
+        damping = damping.at[d:d + 3].set(values[0] * mass[b])
+    return {"dof_damping": damping}
 
 
 QUADRATIC_DRAG = Effect(
@@ -71,8 +84,8 @@ LINEAR_DRAG = Effect(
     params=(EffectParam("drag_linear", "1/s", 0.0, 0.0, 5.0, 0.2, (1.2, 2.5),
                         "drag deceleration per unit speed (inverse relaxation time)"),),
     evidence="the deceleration at low speed (a shallow ramp or the slow end of the run on the floor)",
-    source="Stokes' linear drag F = -b v (Taylor, Classical Mechanics, 2.2)",
-    force=_linear_force,
+    source="Stokes' linear drag F = -b v (Taylor, Classical Mechanics, 2.2); MuJoCo joint damping",
+    model=_linear_damping,
 )
 
 
@@ -111,9 +124,13 @@ RESTITUTION = Effect(
 
 
 # ----------------------------------------------------------------------------- friction
-def _ramp_friction(k, state, values, ctx):
-    k = jnp.asarray(k)
-    return k.at[:, 0].set(jnp.maximum(k[:, 0] + values[0], 0.0))
+def _ramp_friction(fields, values, ctx):
+    # the ramp's contact pairs get k + dk (both sliding columns), once per rollout: a model field
+    pf = jnp.asarray(fields["pair_friction"])
+    for q in ctx.ramp_pairs:
+        if q >= 0:
+            pf = pf.at[q, 0:2].set(jnp.maximum(pf[q, 0] + values[0], 0.0))
+    return {"pair_friction": pf}
 
 
 RAMP_FRICTION = Effect(
@@ -124,7 +141,7 @@ RAMP_FRICTION = Effect(
     evidence="the acceleration on the ramp against the deceleration on the floor",
     source="Coulomb friction with a surface-dependent coefficient",
     applies=_on_ramp,
-    friction=_ramp_friction,
+    model=_ramp_friction,
 )
 
 

@@ -52,7 +52,22 @@ def make_context(scene, index, dt: float) -> EffectContext:
         n_objects=scene.n_objects,
         on_ramp=tuple(scene.placement(i) == "ramp" for i in range(scene.n_objects)),
         ramp_angle=th, gravity=float(scene.gravity),
-        downhill=(math.cos(th), 0.0, -math.sin(th)), dt=float(dt), object_pair=int(index.object_pair))
+        downhill=(math.cos(th), 0.0, -math.sin(th)), dt=float(dt), object_pair=int(index.object_pair),
+        bodies=tuple(int(b) for b in index.body), dofs=tuple(int(d) for d in index.dof),
+        ramp_pairs=tuple(int(q) for q in index.ramp_pair), floor_pairs=tuple(int(q) for q in index.floor_pair))
+
+
+def surface_frictions(pair_friction, ctx: EffectContext, k_base):
+    """(n_objects, 2) sliding friction coefficients on (ramp, floor) of a model's contact pairs
+    (``pair_friction`` (n_pairs, 5), after the masses, frictions and the effects' model updates are
+    set), jnp; an object with no ramp pair gets its base coefficient ``k_base`` (n_objects,) there.
+    The starting point of the per-step ``friction`` hooks."""
+    pf = jnp.asarray(pair_friction)
+    k_base = jnp.asarray(k_base)
+    cols = []
+    for pairs in (ctx.ramp_pairs, ctx.floor_pairs):
+        cols.append(jnp.stack([pf[q, 0] if q >= 0 else k_base[i] for i, q in enumerate(pairs)]))
+    return jnp.stack(cols, axis=-1)
 
 
 class _Fields:
@@ -108,13 +123,14 @@ def forces(effects, values_list, state: BodyState, ctx):
     return total
 
 
-def frictions(effects, values_list, k_base, state: BodyState, ctx):
+def frictions(effects, values_list, k_surface, state: BodyState, ctx):
     """(n_objects, 2) friction coefficients on (ramp, floor) after the effects' ``friction``
-    hooks, or None if no effect changes friction. ``k_base``: (n_objects,)."""
+    hooks, or None if no effect has one. ``k_surface``: (n_objects, 2) the coefficients before
+    the hooks (:func:`surface_frictions`: the objects' own, after the effects' model updates)."""
     hooks = [(e, v) for e, v in zip(effects, values_list) if e.friction is not None]
     if not hooks:
         return None
-    k = jnp.stack([jnp.asarray(k_base), jnp.asarray(k_base)], axis=-1)
+    k = jnp.asarray(k_surface)
     for e, v in hooks:
         k = e.friction(k, state, v, ctx)
     return k
@@ -133,9 +149,10 @@ def c_state(model: mujoco.MjModel, data: mujoco.MjData, index) -> BodyState:
     return BodyState(pos, vel, np.asarray(model.body_mass[list(index.body)]))
 
 
-def apply_c_model(effects, values, model: mujoco.MjModel, data: mujoco.MjData, index, ctx,
-                  k_base: np.ndarray) -> None:
-    """Once before release: write the effects' model updates and release velocities into C MuJoCo."""
+def apply_c_model(effects, values, model: mujoco.MjModel, data: mujoco.MjData, index, ctx) -> None:
+    """Once before release (masses and frictions already set): write the effects' model updates
+    and release velocities into C MuJoCo (NumPy in, the hooks evaluated eagerly; the renderer's
+    path, outside ``jit``)."""
     vals = split_values(effects, np.asarray(values, np.float64))
     for name, value in model_updates(effects, vals, model, ctx).items():
         getattr(model, name)[...] = np.asarray(value)
@@ -144,11 +161,12 @@ def apply_c_model(effects, values, model: mujoco.MjModel, data: mujoco.MjData, i
         data.qvel[d:d + 3] += v0[i]
 
 
-def c_step(effects, values, model: mujoco.MjModel, data: mujoco.MjData, index, ctx, k_base: np.ndarray) -> None:
-    """One C MuJoCo physics step with the effects' per-step forces and frictions."""
+def c_step(effects, values, model: mujoco.MjModel, data: mujoco.MjData, index, ctx, k_surface: np.ndarray) -> None:
+    """One C MuJoCo physics step with the effects' per-step forces and frictions; ``k_surface``
+    (n_objects, 2): :func:`surface_frictions` of the model after :func:`apply_c_model`."""
     vals = split_values(effects, np.asarray(values, np.float64))
     state = c_state(model, data, index)
-    k = frictions(effects, vals, k_base, state, ctx)
+    k = frictions(effects, vals, k_surface, state, ctx)
     if k is not None:
         k = np.asarray(k)
         for i in range(ctx.n_objects):
