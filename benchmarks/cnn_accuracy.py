@@ -10,7 +10,7 @@ coverage of the 90% intervals. Two observation settings:
   whole windows (what a tracked video gives);
 * ``clean``: no noise (the seed tested on clean simulations).
 
-Each on two test priors: the model's training prior, and the seed's own (:func:`seed_prior`:
+Each on two test priors: the model's training prior, and the seed's own (:func:`galileo_jax.inference.cnn.seed_prior`:
 frictions on (0, 0.3), masses on (0, 1)), the like-for-like comparison with its table.
 
 It also times the training step (examples per second on this machine) and reads each model's
@@ -41,25 +41,6 @@ RESULTS = ROOT / "benchmarks" / "results"
 SEED_TABLE = {"m1": 0.1686, "k1": 0.0004, "m2": 0.1605, "k2": 0.0232}
 #: Object 2 must slide this far (m) for k2 and phi to show in the profile (as tests/test_recovery.py).
 MIN_TRAVEL_2 = 0.05
-#: The seed's training and test prior (NOTES.md "CNN"): frictions uniform on (0, 0.3), masses on (0, 1).
-SEED_FRICTION = 0.3
-
-
-def seed_prior(space, key, n: int):
-    """n draws (n, d) of the scene's coordinates from the seed's prior: k1, k2 ~ U(0, 0.3),
-    phi = (m1 - m2) / (m1 + m2) with m1, m2 ~ U(0, 1), other coordinates (the release time)
-    from ``space``'s prior (pure)."""
-    import jax
-
-    k = jax.random.split(key, 3)
-    theta = space.sample_prior(k[0], n)
-    fr = jax.random.uniform(k[1], (n, 2), minval=0.0, maxval=SEED_FRICTION)
-    m = jax.random.uniform(k[2], (n, 2), minval=1e-3, maxval=1.0)
-    cols = {"k1": fr[:, 0], "k2": fr[:, 1], "phi": (m[:, 0] - m[:, 1]) / (m[:, 0] + m[:, 1])}
-    for name, col in cols.items():
-        if name in space.names:
-            theta = theta.at[:, space.index(name)].set(col.astype(theta.dtype))
-    return theta
 
 
 def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
@@ -69,7 +50,7 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
 
     from galileo_jax.inference import cnn
     from galileo_jax.jaxcache import enable_compilation_cache
-    from galileo_jax.train import TrainConfig, setup
+    from galileo_jax.train import TrainConfig, draw_prior, setup
 
     enable_compilation_cache()
     model = cnn.load_model(model_dir)
@@ -83,8 +64,7 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
     @functools.partial(jax.jit, static_argnums=1)
     def sims(key, seed_draws: bool):
         k_theta, k_sim = jax.random.split(key)
-        theta = (seed_prior(s.engine.space, k_theta, chunk) if seed_draws
-                 else cnn.training_prior(s.engine.space, s.scene, k_theta, chunk, cfg.slide_margin))
+        theta = cnn.seed_prior(s.engine.space, k_theta, chunk) if seed_draws else draw_prior(s, k_theta, chunk)
         out = {name: cnn.simulate_examples(s.engine, spec, noise, theta, jax.random.fold_in(k_sim, j))
                for j, (name, noise) in enumerate(settings.items())}
         # How far object 2 slides in the window (m): the clean profile's x velocity summed over time.

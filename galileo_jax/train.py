@@ -73,6 +73,7 @@ class TrainConfig(_Strict):
     nll_beta: float = Field(0.5, ge=0, le=1)
     weight_decay: float = Field(1e-4, ge=0)
     slide_margin: float = Field(0.02, ge=0)
+    prior: Literal["scene", "seed"] = "scene"
     noise: NoiseConfig = NoiseConfig()
     validation: int = Field(512, ge=1)
     log_every: int = Field(100, ge=1)
@@ -164,6 +165,17 @@ def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
     return Setup(cfg, scene, spec, noise, engine, graphdef, tx), state
 
 
+def draw_prior(s: Setup, key, n: int):
+    """n training draws (n, d) of theta from the config's ``prior`` (pure): ``scene``: the scene's
+    prior with object 1 sliding (:func:`~galileo_jax.inference.cnn.training_prior`); ``seed``: the
+    seed's (:func:`~galileo_jax.inference.cnn.seed_prior`)."""
+    from galileo_jax.inference import cnn
+
+    if s.cfg.prior == "seed":
+        return cnn.seed_prior(s.engine.space, key, n)
+    return cnn.training_prior(s.engine.space, s.scene, key, n, s.cfg.slide_margin)
+
+
 def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
     """Pure ``batch(key, n_rollouts) -> (x (n * views, L, T + 1), theta (n * views, d))``:
     simulated, noisy network inputs and their true parameters (``views`` copies of each
@@ -177,7 +189,7 @@ def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
 
     def batch(key, n):
         k_theta, k_sim = jax.random.split(key)
-        theta = cnn.training_prior(s.engine.space, s.scene, k_theta, n, s.cfg.slide_margin)
+        theta = draw_prior(s, k_theta, n)
         x = cnn.simulate_examples(s.engine, s.spec, s.noise, theta, k_sim, views)
         return x, jnp.tile(theta, (views, 1)).astype(jnp.float32)
 

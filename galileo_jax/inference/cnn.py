@@ -378,6 +378,26 @@ def training_prior(space: ParamSpace, scene: Scene, key: jax.Array, n: int, slid
     return theta
 
 
+#: The seed's training and test prior (NOTES.md "CNN", dissertation 4.3): frictions uniform on
+#: (0, SEED_FRICTION), masses on (0, 1).
+SEED_FRICTION = 0.3
+
+
+def seed_prior(space: ParamSpace, key: jax.Array, n: int) -> jax.Array:
+    """n draws (n, d) of theta from the seed's prior: k1, k2 ~ U(0, 0.3), phi = (m1 - m2) / (m1 + m2)
+    with m1, m2 ~ U(0, 1) (so phi is not uniform), the other coordinates (the release time) from
+    ``space``'s prior. Pure. The like-for-like setting of the seed's error table."""
+    k = jax.random.split(key, 3)
+    theta = space.sample_prior(k[0], n)
+    fr = jax.random.uniform(k[1], (n, 2), minval=0.0, maxval=SEED_FRICTION)
+    m = jax.random.uniform(k[2], (n, 2), minval=1e-3, maxval=1.0)
+    cols = {"k1": fr[:, 0], "k2": fr[:, 1], "phi": (m[:, 0] - m[:, 1]) / (m[:, 0] + m[:, 1])}
+    for name, col in cols.items():
+        if name in space.names:
+            theta = theta.at[:, space.index(name)].set(col.astype(theta.dtype))
+    return theta
+
+
 def simulate_examples(engine, spec: CNNSpec, noise: NoiseModel, theta: jax.Array, key: jax.Array,
                       views: int = 1) -> jax.Array:
     """Network inputs (n * views, L, T + 1) float32 for parameters ``theta`` (n, d) (pure, jittable).
