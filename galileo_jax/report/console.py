@@ -59,7 +59,7 @@ def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str
 
 
 def _diagnostic_lines(diagnostics: dict) -> list[str]:
-    diag = {k: v for k, v in diagnostics.items() if isinstance(v, (int, float, bool, str))}
+    diag = {k: v for k, v in diagnostics.items() if isinstance(v, (int, float, bool, str)) and v != ""}
     if not diag:
         return []
     return ["  diagnostics: " + ", ".join(f"{k} {_fmt(v) if isinstance(v, float) else v}" for k, v in diag.items())]
