@@ -152,6 +152,7 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
     import jax
 
     from galileo_jax import criticism
+    from galileo_jax.diagnosis import ENGINE_NAMES, base_loglik_by_engine
     from galileo_jax.report.figures import model_comparison_figure, profile_figure, residual_figure
     from galileo_jax.report.results import package_versions, write_json
 
@@ -177,7 +178,11 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
         profile_figure(path, times, obs.profile, final.videos[j].simulated, obs.velocity_sd, mask, bands[j],
                        f"{title}: {final.name}")
         outputs[f"profiles_final{suffix}"] = str(path)
-    models = [{"name": f.name, "rmse": f.rmse, "loglik": f.loglik, "noise_floor": diag.noise_floor} for f in diag.fits]
+    base_loglik = base_loglik_by_engine(diag)
+    engines = {f.union.engine for f in diag.fits}
+    models = [{"name": f.name + (f" ({ENGINE_NAMES[f.union.engine]})" if len(engines) > 1 else ""), "rmse": f.rmse,
+               "loglik": f.loglik, "noise_floor": diag.noise_floor,
+               "loglik_reference": base_loglik.get(f.union.engine)} for f in diag.fits]
     path = out / "model_comparison.png"
     model_comparison_figure(path, models, f"{titles[0] if not several else 'joint'}: error per model")
     outputs["model_comparison"] = str(path)

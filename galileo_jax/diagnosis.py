@@ -1110,6 +1110,23 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
 ENGINE_NAMES = {"mjx": "MJX", "mujoco": "C MuJoCo"}
 
 
+def base_loglik_by_engine(diag: "Diagnosis") -> dict[str, float]:
+    """{engine: log-likelihood (nats) of the base model on that engine}: the base fit on its own
+    engine; on another, the base model refitted there in the first round (after its null refit,
+    when that improved it). Log-likelihoods of one model on two engines differ (the engines
+    differ at impacts), so a model's gain is read against the base on its own engine."""
+    base = diag.fits[0]
+    out = {base.union.engine: float(base.loglik)}
+    first = diag.rounds[0] if diag.rounds else {}
+    for tr in first.get("transfers", []):
+        if tr["model"] == base.name:
+            out.setdefault(tr["engine"], float(tr["loglik"]))
+    for nr in first.get("null_refit", []):
+        if nr["model"] == base.name and nr["engine"] != base.union.engine:
+            out[nr["engine"]] = float(nr["loglik_after"])
+    return out
+
+
 def candidate_unions(ws: Workspace, scenes, candidates, added, settings: DiagnoseSettings) -> dict[str, Union]:
     """{candidate name: the union it is refitted in}: the candidates with parameters grouped by
     the engine of current + candidate (:func:`model_engine`), one union per group holding the

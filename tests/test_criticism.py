@@ -317,3 +317,26 @@ def test_model_comparison_figure(tmp_path):
     assert np.isnan(drawn["delta_loglik"][2])
     with pytest.raises(ValueError):
         model_comparison_figure(tmp_path / "none.png", [])
+    # a model on another engine is measured from the base model refitted on that engine
+    models[2] = {"name": "+ drag (MJX)", "rmse": 0.11, "loglik": -300.0, "noise_floor": 0.05,
+                 "loglik_reference": -380.0}
+    drawn = model_comparison_figure(tmp_path / "engines.png", models)
+    np.testing.assert_allclose(drawn["delta_loglik"], [0.0, 149.5, 80.0])
+
+
+def test_base_loglik_by_engine():
+    """The reference of each engine: the base fit's own engine, else the base refitted on the
+    other engine in round 1, after its null refit where that improved it."""
+    from types import SimpleNamespace
+
+    from galileo_jax.diagnosis import base_loglik_by_engine
+
+    base = SimpleNamespace(name="base", loglik=-245.7, union=SimpleNamespace(engine="mujoco"))
+    transfers = [{"model": "base", "engine": "mjx", "loglik": -2385.2}]
+    nulls = [{"model": "base", "engine": "mjx", "loglik_after": -254.8},
+             {"model": "base", "engine": "mujoco", "loglik_after": -245.7}]
+    diag = SimpleNamespace(fits=[base], rounds=[{"transfers": transfers, "null_refit": nulls}])
+    assert base_loglik_by_engine(diag) == {"mujoco": -245.7, "mjx": -254.8}
+    diag.rounds[0]["null_refit"] = []
+    assert base_loglik_by_engine(diag) == {"mujoco": -245.7, "mjx": -2385.2}
+    assert base_loglik_by_engine(SimpleNamespace(fits=[base], rounds=[])) == {"mujoco": -245.7}

@@ -15,6 +15,7 @@ and a user-defined effect picked up by ``diagnose``.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -188,8 +189,9 @@ CUBIC = Effect(
     evidence="the top speed", force=_cubic_drag)
 
 
-def test_user_defined_effect_is_simulated_and_found_by_diagnose():
-    from galileo_jax.diagnosis import DiagnoseSettings, diagnose
+def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
+    from galileo_jax.diagnose import write_outputs
+    from galileo_jax.diagnosis import DiagnoseSettings, base_loglik_by_engine, diagnose
     from galileo_jax.inference.problem import simulated_observation
 
     register_effect(CUBIC, replace=True)
@@ -209,6 +211,11 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose():
         assert rnd["engines"] == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
         assert [t["engine"] for t in rnd["transfers"]] == ["mjx"]
         assert {x["effect"]: x["engine"] for x in rnd["refits"]} == rnd["engines"]
+        # each model's log-likelihood gain is read against the base model on its own engine
+        ref = base_loglik_by_engine(diag)
+        assert set(ref) == {"mujoco", "mjx"}
+        for x in rnd["refits"]:
+            assert diag.fits[x["fit_index"]].loglik - ref[x["engine"]] == pytest.approx(x["delta_loglik"])
     fitted = diag.final.summary["parameters"]["drag_cubic"]
     assert fitted["interval90"][0] - 0.3 < 3.0 < fitted["interval90"][1] + 0.3
     assert d["rmse_final"] < 0.5 * d["rmse_base"]
@@ -221,6 +228,9 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose():
     # the base fit's residuals were flagged, the final ones look like noise
     assert not diag.fits[0].criticism["looks_like_noise"]
     assert diag.final.criticism["looks_like_noise"]
+    outputs = write_outputs(diag, tmp_path, ["cubic"])  # the report's figures and JSON
+    for name in ("residuals_base", "residuals_final", "profiles_final", "model_comparison", "result"):
+        assert Path(outputs[name]).stat().st_size > 0, name
 
 
 def test_scaled_lr_is_calibrated_when_the_noise_scale_is_wrong():

@@ -199,13 +199,16 @@ def model_comparison_figure(path: str | Path, models: list[dict], title: str = "
         models: one dict per model, the first being the base model, with keys "name" (str),
             "rmse" (m/s, RMS of observed - simulated over the fit window), "loglik" (nats at
             the fit; None/NaN if not available) and "noise_floor" (m/s, the RMSE a perfect
-            model would reach, e.g. :func:`galileo_jax.criticism.noise_floor`).
+            model would reach, e.g. :func:`galileo_jax.criticism.noise_floor`); optionally
+            "loglik_reference" (nats): the base model's log-likelihood on the same simulation
+            engine, which this model's gain is measured from (log-likelihoods from different
+            engines are not comparable); without it, the first model's.
         title: figure title.
 
     Returns:
         What was drawn, read back from the bars: {"names", "rmse" (bar heights, m/s),
         "noise_floor" (dashed line heights, m/s), "delta_loglik" (bar heights, nats, loglik -
-        loglik of the first model; NaN where not available)}.
+        its reference, the first model's by default; NaN where not available)}.
 
     Raises:
         ValueError: no models, or a model without a name or rmse.
@@ -219,7 +222,8 @@ def model_comparison_figure(path: str | Path, models: list[dict], title: str = "
         raise ValueError(f"every model needs a name and an rmse; missing {err}") from None
     floor = np.array([np.nan if m.get("noise_floor") is None else float(m["noise_floor"]) for m in models])
     ll = np.array([np.nan if m.get("loglik") is None else float(m["loglik"]) for m in models])
-    dll = ll - ll[0]
+    ref = np.array([ll[0] if m.get("loglik_reference") is None else float(m["loglik_reference"]) for m in models])
+    dll = ll - ref
     x = np.arange(len(models))
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(max(7.0, 1.6 * len(models) + 4), 3.6))
     bars1 = ax1.bar(x, rmse, color="tab:blue", alpha=0.8)
@@ -245,7 +249,9 @@ def model_comparison_figure(path: str | Path, models: list[dict], title: str = "
     ax2.axhline(0, color="k", lw=0.7)
     ax2.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
     ax2.set_ylabel(f"log L - log L({names[0]}) (nats)")
-    ax2.set_title("log-likelihood relative to the base model", fontsize=9)
+    ax2.set_title("log-likelihood relative to the base model"
+                  + (" on the same engine" if any(m.get("loglik_reference") is not None for m in models) else ""),
+                  fontsize=9)
     ax2.grid(alpha=0.3, axis="y")
     if title:
         fig.suptitle(title, fontsize=10)
