@@ -168,7 +168,10 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
         sd_model = final.union.problems[j].likelihood.sd_model
         for label, fit in (("base", diag.fits[0]), ("final", final)):
             vf = fit.videos[j]
-            z = criticism.standardised_residuals(obs, vf.simulated, sd_model)
+            # standardised with the tracking noise the tests used (the tracker's, or the one
+            # measured from the residual track where the tracker's is too small)
+            noise = criticism.tracking_noise(obs, vf.simulated, sd_model)["used"]
+            z = criticism.standardised_residuals(obs._replace(position_sd=noise), vf.simulated, sd_model)
             phases = criticism.motion_phases(vf.poses, obs.frame_times, obs.release_time, obs.n_objects)
             table = criticism.residual_table(obs, vf.simulated, sd_model, phases)
             path = out / f"residuals_{label}{suffix}.png"
