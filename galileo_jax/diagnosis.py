@@ -28,7 +28,8 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    screen's step (and a few screened starts), then a CMA-ES search from LM's end and LM again
    from its best point (``refit_search``; :mod:`~galileo_jax.inference.search`: the cost is
    rough, and LM alone stops far along the valley where an effect trades off against
-   friction). The current model is then refitted once (LM and search) from
+   friction; an effect whose cost has several basins, restitution at impacts, gets
+   ``Effect.search_restarts`` searches, from LM's end and from a global screen's fit). The current model is then refitted once (LM and search) from
    the best refit's estimate with the effect held neutral (:func:`refit_null`): a
    likelihood-ratio test needs the null at its maximum, and a base fit stuck in a worse
    optimum makes every effect look needed. If that finds a better optimum, the tests are
@@ -547,7 +548,16 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
     record = None
     if search and init is not None and search_budget(union, settings, settings.refit_search)[1] > 0:
         # LM stops in the rough cost's ripples: search on
-        res, record = search_then_lm(union, res, held, settings, key, settings.refit_search, settings.search_sigma)
+        restarts = search_restarts(union, free_effects)
+        starts = ()
+        if restarts > 1:  # a multimodal cost: also search from a global screen's fit
+            glob = fit_grad(union.problem, jax.random.fold_in(key, 7), n_starts=settings.base_starts,
+                            n_screen=settings.base_screen, fixed=held, max_steps=settings.max_steps)
+            starts = (glob.theta,)
+            if glob.loglik > res.loglik:
+                res = glob
+        res, record = search_then_lm(union, res, held, settings, key, settings.refit_search, settings.search_sigma,
+                                     restarts=restarts, starts=starts)
     fit = evaluate(union, res, free_effects, settings)
     if record is not None:
         record.setdefault("rmse_lm", fit.rmse)  # the search's point was not used: LM's end is the fit
@@ -555,17 +565,36 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
     return fit
 
 
+def search_restarts(union: Union, free_effects) -> int:
+    """CMA-ES searches of a refit freeing ``free_effects``: the largest ``Effect.search_restarts`` among them (>= 1)."""
+    by_name = {e.name: e for e in union.effects}
+    return max([1] + [by_name[n].search_restarts for n in free_effects if n in by_name])
+
+
 def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettings, key, generations: int,
-                   sigma: float, rmse_lm: float | None = None) -> tuple[GradResult, dict]:
+                   sigma: float, rmse_lm: float | None = None, restarts: int = 1,
+                   starts: Sequence[np.ndarray] = ()) -> tuple[GradResult, dict]:
     """CMA-ES from ``res``'s estimate (:func:`search_budget` of ``generations``, initial step
     ``sigma`` in z), then LM again from its best point if that is better; returns the better
     result and a record of the search (log-likelihoods of LM's end, of the search and of the result,
-    and, when the search's point is used, the RMSE at LM's end: ``rmse_lm`` if known, else one rollout)."""
+    and, when the search's point is used, the RMSE at LM's end: ``rmse_lm`` if known, else one rollout).
+
+    With ``restarts`` > 1, that many independent searches (seeds) run, alternating between
+    ``res``'s estimate and ``starts`` (e.g. a global screen's fit), and the best point of all is
+    used: where the cost has several basins (impacts, :attr:`Effect.search_restarts`) one
+    search finds the best one only some of the time."""
     popsize, generations = search_budget(union, settings, generations)
-    found = cma_search(union.problem, res.theta, sigma=sigma, popsize=popsize,
-                       generations=generations, seed=int(jax.random.randint(key, (), 0, 2**30)), fixed=held)
-    search = {"method": "CMA-ES (pycma)", "generations": found.generations, "evaluations": found.evaluations,
-              "loglik_lm": res.loglik, "loglik_search": found.loglik, "time_s": found.time_s, "used": False}
+    seed = int(jax.random.randint(key, (), 0, 2**30))
+    points = [res.theta] + [np.asarray(s, np.float64) for s in starts]
+    runs = [cma_search(union.problem, points[r % len(points)], sigma=sigma, popsize=popsize,
+                       generations=generations, seed=seed + r, fixed=held) for r in range(max(int(restarts), 1))]
+    found = max(runs, key=lambda f: f.loglik)
+    search = {"method": "CMA-ES (pycma)", "generations": found.generations,
+              "evaluations": sum(f.evaluations for f in runs), "loglik_lm": res.loglik,
+              "loglik_search": found.loglik, "time_s": sum(f.time_s for f in runs), "used": False}
+    if len(runs) > 1:
+        search["restarts"] = len(runs)
+        search["loglik_runs"] = [float(f.loglik) for f in runs]
     if found.loglik > res.loglik + 1e-6:  # LM again from the search's best point, for the covariance
         again = fit_grad(union.problem, jax.random.fold_in(key, 1), n_starts=0, n_screen=0, init=found.theta,
                          fixed=held, max_steps=settings.max_steps)

@@ -14,6 +14,7 @@ and a user-defined effect picked up by ``diagnose``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -290,3 +291,40 @@ def test_adequacy_check_leaves_out_contact_events_but_not_what_follows_them():
     too_fast = fit.videos[0].simulated + np.where(np.arange(n) > 30, 0.02, 0.0)  # after the impact, every sample
     late = SimpleNamespace(videos=[SimpleNamespace(simulated=too_fast)], rmse=None)
     assert calm_rmse(late, [obs], calm_masks(late, [obs]))[0] > 0.008
+
+
+def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
+    """``Effect.search_restarts``: restitution's refits run several CMA-ES searches, alternating
+    between LM's end and a global screen's fit, and keep the best point of all; an effect
+    without restarts gets one search. (Cheap: a one-object C MuJoCo union, 2 generations of 8.)"""
+    from galileo_jax import diagnosis as D
+    from galileo_jax.inference import search as S
+    from galileo_jax.inference.problem import simulated_observation
+
+    assert get_effect("restitution").search_restarts > 1 and get_effect("linear_drag").search_restarts == 1
+    scene = _scene(two=False, start=1.0)
+    obs = simulated_observation(scene, PhysParams(jnp.array([0.5]), jnp.array([0.2])), fps=30.0, duration=0.8,
+                                release_time=0.2, position_sd=1e-4)
+    settings = D.DiagnoseSettings(search_popsize_c=8, search_generations_c=2, base_starts=1, base_screen=8,
+                                  max_steps=10)
+    union = D.Union([scene], [obs], (get_effect("linear_drag"),), settings, engine="mujoco")
+    starts_seen = []
+    real = S.cma_search
+
+    def spy(problem, theta0, **kw):
+        out = real(problem, theta0, **kw)
+        starts_seen.append((np.asarray(theta0).copy(), kw["seed"], out.loglik))
+        return out
+
+    monkeypatch.setattr(D, "cma_search", spy)
+    fit = D.fit_model(union, ("linear_drag",), settings, jax.random.PRNGKey(0), init=np.array([0.3, 0.0, 0.5]))
+    assert len(starts_seen) == 1 and "restarts" not in fit.search
+    starts_seen.clear()
+    restarting = dataclasses.replace(get_effect("linear_drag"), search_restarts=3)  # as restitution declares
+    union = D.Union([scene], [obs], (restarting,), settings, engine="mujoco")
+    fit = D.fit_model(union, ("linear_drag",), settings, jax.random.PRNGKey(0), init=np.array([0.3, 0.0, 0.5]))
+    assert fit.search["restarts"] == 3 and len(starts_seen) == 3
+    assert len({seed for _, seed, _ in starts_seen}) == 3  # independent searches
+    assert not np.allclose(starts_seen[0][0], starts_seen[1][0]) and np.allclose(starts_seen[0][0], starts_seen[2][0])
+    assert fit.search["loglik_search"] == pytest.approx(max(ll for _, _, ll in starts_seen))
+    assert fit.loglik >= max(ll for _, _, ll in starts_seen) - 1e-6

@@ -145,6 +145,9 @@ class Effect:
         evidence: which measurement shows the effect best (used to say how to separate
             effects the data cannot tell apart).
         source: where the formula comes from.
+        search_restarts: independent CMA-ES searches of a ``diagnose`` refit that frees this
+            effect (:func:`galileo_jax.diagnosis.search_then_lm`; 1 for a likelihood with one
+            basin to find, more where it is multimodal, e.g. at impacts).
         applies: ``scene -> None`` if the effect can act in the scene, else a reason (str).
         build, model, initial_velocity, force, friction, release_delay: hooks (module docstring).
     """
@@ -154,6 +157,7 @@ class Effect:
     params: tuple[EffectParam, ...] = ()
     evidence: str = ""
     source: str = ""
+    search_restarts: int = 1
     applies: Callable[[Any], str | None] = field(default=lambda scene: None, repr=False)
     build: Callable | None = field(default=None, repr=False)
     model: Callable | None = field(default=None, repr=False)
