@@ -763,6 +763,14 @@ def noise_note(table: Sequence[ResidualRow]) -> str:
             f" estimate (tracking glitches): {parts}.")
 
 
+def tested_position_sd(summary: dict[str, Any], observation: Observation) -> np.ndarray:
+    """(2n,) tracking-noise SD (m) each trace's tests used, from a :func:`summarize` dict
+    (``tracking_noise_m``); the tracker's ``position_sd`` for a trace without samples."""
+    used = summary.get("tracking_noise_m", {})
+    names = trace_names(observation.n_objects)
+    return np.array([used[n]["used"] if n in used else float(sd) for n, sd in zip(names, observation.position_sd)])
+
+
 def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray, sd_model: float = SD_MODEL,
               alpha: float = 0.01, rest_speed: float = REST_SPEED, collision_halfwidth: int = 2) -> dict[str, Any]:
     """Criticise a fit: phases, residual table and verdict, as JSON-ready values.

@@ -165,17 +165,17 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
         suffix = f"_{j + 1}" if several else ""
         times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
         mask = np.asarray(obs.mask, bool)
-        sd_model = final.union.problems[j].likelihood.sd_model
         for label, fit in (("base", diag.fits[0]), ("final", final)):
             vf = fit.videos[j]
+            crit = vf.criticism  # the fit's criticism (criticism.summarize): phases, table, noise
             # standardised with the tracking noise the tests used (the tracker's, or the one
             # measured from the residual track where the tracker's is too small)
-            noise = criticism.tracking_noise(obs, vf.simulated, sd_model)["used"]
-            z = criticism.standardised_residuals(obs._replace(position_sd=noise), vf.simulated, sd_model)
-            phases = criticism.motion_phases(vf.poses, obs.frame_times, obs.release_time, obs.n_objects)
-            table = criticism.residual_table(obs, vf.simulated, sd_model, phases)
+            z = criticism.standardised_residuals(obs._replace(position_sd=criticism.tested_position_sd(crit, obs)),
+                                                 vf.simulated, crit["sd_model"])
+            phases = np.asarray(crit["phases"]["labels"])
+            flagged = [(r["trace"], r["phase"]) for r in crit["table"] if r["structured"]]
             path = out / f"residuals_{label}{suffix}.png"
-            residual_figure(path, times, z, phases, mask, f"{title}: {fit.name}", flagged=criticism.flagged(table))
+            residual_figure(path, times, z, phases, mask, f"{title}: {fit.name}", flagged=flagged)
             outputs[f"residuals_{label}{suffix}"] = str(path)
         path = out / f"profiles_final{suffix}.png"
         profile_figure(path, times, obs.profile, final.videos[j].simulated, obs.velocity_sd, mask, bands[j],

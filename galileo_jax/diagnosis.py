@@ -29,11 +29,11 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    from its best point (``refit_search``; :mod:`~galileo_jax.inference.search`: the cost is
    rough, and LM alone stops far along the valley where an effect trades off against
    friction; an effect whose cost has several basins, restitution at impacts, gets
-   ``Effect.search_restarts`` searches, from LM's end and from a global screen's fit). The current model is then refitted once (LM and search) from
-   the best refit's estimate with the effect held neutral (:func:`refit_null`): a
-   likelihood-ratio test needs the null at its maximum, and a base fit stuck in a worse
-   optimum makes every effect look needed. If that finds a better optimum, the tests are
-   redone against it (and the adequacy check of step 3 is applied again).
+   ``Effect.search_restarts`` searches, from LM's end and from a global screen's fit). The
+   current model is then refitted once (LM and search) from the best refit's estimate with
+   the effect held neutral (:func:`refit_null`): a likelihood-ratio test needs the null at
+   its maximum, and a base fit stuck in a worse optimum makes every effect look needed. If
+   that finds a better optimum, the tests are redone against it (and the adequacy check of step 3 is applied again).
 6. **Decide**: an effect is *supported* when its likelihood-ratio test against the current
    model, on the residuals of the *test likelihood* (below), with each trace's noise scale
    estimated from the alternative's residuals (:func:`~galileo_jax.inference.screen.scaled_lr`,

@@ -262,6 +262,7 @@ def test_tracking_glitches_are_measured_as_noise_not_blamed_on_the_model(seed):
     assert "measured from the residual track" in out["verdict"] and "object 1 x" in out["verdict"]
     assert out["tracking_noise_m"]["object 1 x"]["reestimated"]
     assert out["tracking_noise_m"]["object 1 x"]["tracker"] == pytest.approx(0.001)
+    np.testing.assert_allclose(C.tested_position_sd(out, obs), noise["used"])  # what the report's figure uses
 
     wrong = C.summarize(*glitchy(seed, scale2=3.0), sd_model=0.05)
     assert not wrong["looks_like_noise"]
