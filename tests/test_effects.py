@@ -25,6 +25,7 @@ import pytest
 from scipy import stats
 
 from galileo_jax.effects import BodyState, Effect, EffectParam, available_effects, get_effect, register_effect
+from galileo_jax.effects.library import SOLREF_TIMECONST, restitution_solref
 from galileo_jax.effects.runtime import neutral_values
 from galileo_jax.errors import GalileoError
 from galileo_jax.inference.screen import lr_pvalue, score_test, vuong_test
@@ -74,12 +75,9 @@ def test_restitution_impact_conserves_momentum_and_rebounds_alike_at_every_impac
     (16 pushes: the impact falls at 16 phases of the physics step). Closed form: momentum is
     conserved; the rebound ratio e_eff = (v2' - v1') / u1 depends on the restitution, not on
     where in a physics step the contact starts. With the contact's timeconst held at 0.02 s
-    (the damping ratio alone lowered) nominal e = 0.5 gave e_eff 0.30-1.04 (SD 0.21) over
-    these phases; :func:`restitution_solref` keeps the contact frequency and gives SD ~0.02."""
-    scene = scene_from_dict({"ramp": {"angle_deg": 1.0, "length": 0.6}, "floor": {"length": 1.2},
-                             "objects": [{"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.1},
-                                         {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.2}],
-                             "camera": {"pixels_per_metre": 400}})
+    (the damping ratio alone lowered) nominal e = 0.5 gave e_eff 0.40-0.73 over these phases
+    (SD > 0.1; the test failed there); :func:`restitution_solref` keeps the contact frequency."""
+    scene = _scene(angle=1.0, start=0.1)  # a nearly flat ramp: object 1 slides on at its push speed
     sim = make_simulator(scene, 30.0, (get_effect("restitution"), get_effect("initial_push")), "mujoco")
     frames = jnp.arange(30) / 30.0
     n = steps_needed(sim, float(frames[-1]))
@@ -99,7 +97,6 @@ def test_restitution_impact_conserves_momentum_and_rebounds_alike_at_every_impac
         assert np.std(e_eff[e]) < 0.06, (e, e_eff[e])
     assert 0.4 < np.median(e_eff[0.5]) < 0.7
     assert np.median(e_eff[0.3]) < np.median(e_eff[0.5]) < np.median(e_eff[0.65])
-    from galileo_jax.effects.library import SOLREF_TIMECONST, restitution_solref
     np.testing.assert_allclose(np.asarray(restitution_solref(0.0)), [SOLREF_TIMECONST, 1.0])  # neutral: default
 
 

@@ -122,7 +122,8 @@ def restitution_solref(e):
     finer steps for this effect alone would break the nesting (the base model's own impacts
     differ by 1-3x the noise floor between 8 and 16 steps per frame on the rendered
     calibration videos), so the scene's timestep is kept. The effective rebound ratio (64
-    steps, this impact) is a little above the nominal one: 0.39 / 0.54 / 0.67 / 0.81 for e = 0.3 / 0.5 / 0.65 / 0.8 (the base contact's own is 0.13).
+    steps, this impact) is a little above the nominal one: 0.39 / 0.54 / 0.67 / 0.81 for
+    e = 0.3 / 0.5 / 0.65 / 0.8 (the base contact's own is 0.13).
     """
     zeta = restitution_dampratio(e)
     return jnp.stack([SOLREF_TIMECONST / zeta, zeta])
