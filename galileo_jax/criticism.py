@@ -65,7 +65,7 @@ Tests for structure (each on the masked samples of one trace in one phase; sourc
   ``scipy.stats.chi2.sf(T, n)`` when rho = 0.
 
 The tracking noise of the tests. ``sd_p`` comes from the tracker
-(:func:`galileo_jax.observe.profile.estimate_noise_sd`: third differences of the position
+(:func:`galileo_jax.observe.tracks.estimate_noise_sd`: third differences of the position
 track, leaving out those beyond 3.5 robust SDs, because without a model of the motion a
 tracking glitch and a change of acceleration look alike). Here the fitted motion is known, so
 :func:`tracking_noise` measures the noise again from the third differences of the *residual*

@@ -28,7 +28,14 @@ class VideoError(GalileoError):
 
 
 class TrackingError(GalileoError):
-    """An object could not be found or its track was lost, or it never moves."""
+    """An object could not be found or its track was lost, or it never moves.
+
+    ``object_index`` is the 0-based index (within the tracked group) of the object concerned,
+    or None."""
+
+    def __init__(self, message: str, object_index: int | None = None):
+        super().__init__(message)
+        self.object_index = object_index
 
 
 def cli_entry(main: Callable[[list[str] | None], int]) -> Callable[[list[str] | None], int]:

@@ -12,6 +12,55 @@ from typing import NamedTuple
 import numpy as np
 
 
+class TrackingInfo(NamedTuple):
+    """How the objects were followed in the video (:func:`galileo_jax.observe.observe`).
+
+    Attributes:
+        methods: per object "features" (KLT), "colour" (colour matte) or "outline".
+        quality: (N, n_objects) quality in [0, 1] of each frame's measurement (0: none).
+        measured: (N, n_objects) bool, frames whose measurement is used (quality at least
+            :data:`galileo_jax.observe.profile.QUALITY_MIN`); the others are left out of the fit.
+        start_frame: frame in which the objects were found at rest and tracking started.
+        cross_check_px: (n_objects,) median distance (px) between an object's KLT track and
+            its colour track (NaN where only one method followed it).
+        quality_min: the quality below which a measurement is left out.
+    """
+
+    methods: tuple[str, ...]
+    quality: np.ndarray
+    measured: np.ndarray
+    start_frame: int
+    cross_check_px: np.ndarray
+    quality_min: float = 0.5
+
+    def counts(self) -> list[dict]:
+        """Per object: frames ``measured``; ``dropped``, unmeasured frames between the first
+        and the last measured one (occluded, blurred away, or rejected by the quality
+        threshold or the cross-check); ``unseen``, frames before the first or after the last
+        measured one (covered from the start, or out of the image)."""
+        out = []
+        for i in range(self.measured.shape[1]):
+            m = self.measured[:, i]
+            idx = np.flatnonzero(m)
+            inside = (idx[-1] - idx[0] + 1) if len(idx) else 0
+            out.append({"measured": int(m.sum()), "dropped": int(inside - m.sum()),
+                        "unseen": int(len(m) - inside)})
+        return out
+
+    def summary(self) -> dict:
+        """What ``result.json`` records of the tracking: per object its method, frame counts
+        (:meth:`counts`), median quality of the measured frames and the cross-check distance
+        (px, None where there was none); the quality threshold and the start frame."""
+        objects = []
+        for i, c in enumerate(self.counts()):
+            q = self.quality[self.measured[:, i], i]
+            x = float(self.cross_check_px[i])
+            objects.append({"object": i + 1, "method": self.methods[i], **c,
+                            "median_quality": float(np.median(q)) if len(q) else None,
+                            "cross_check_px": None if not np.isfinite(x) else x})
+        return {"objects": objects, "quality_min": float(self.quality_min), "start_frame": int(self.start_frame)}
+
+
 class Observation(NamedTuple):
     """Observed motion of the scene's objects.
 
@@ -28,6 +77,8 @@ class Observation(NamedTuple):
         release_time: video time in s at which object 1 starts to move (from the track).
         fps: frame rate in frames per second.
         moved: (n_objects,) bool, whether each object moved during the video.
+        tracking: how the video was tracked (:class:`TrackingInfo`), None for observations
+            not made from a video.
     """
 
     frame_times: np.ndarray
@@ -39,6 +90,7 @@ class Observation(NamedTuple):
     release_time: float
     fps: float
     moved: np.ndarray
+    tracking: TrackingInfo | None = None
 
     @property
     def n_objects(self) -> int:

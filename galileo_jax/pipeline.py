@@ -2,7 +2,7 @@
 
 :func:`run_fit` observes the video, builds the inference :class:`Problem`, runs the chosen
 method, simulates the estimate (and posterior draws) over the whole video and beyond, and
-writes ``result.json``, ``profiles.png`` and ``overlay.mp4`` atomically into the output
+writes ``result.json``, ``profiles.png``, ``tracking.png`` and ``overlay.mp4`` atomically into the output
 folder. It returns a :class:`FitReport` for the console summary.
 """
 
@@ -23,7 +23,7 @@ from galileo_jax.errors import GalileoError
 from galileo_jax.inference.problem import Problem
 from galileo_jax.observation import Observation
 from galileo_jax.predict import RestPrediction, predict_rest, slides
-from galileo_jax.report.figures import profile_figure, trace_names
+from galileo_jax.report.figures import profile_figure, trace_names, tracking_figure
 from galileo_jax.report.results import package_versions, write_json
 from galileo_jax.scene import Scene
 
@@ -447,6 +447,15 @@ def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: P
     profile_figure(fig, times, obs.profile, report.simulated, obs.velocity_sd, np.asarray(obs.mask, bool),
                    report.band, title)
     report.outputs["figure"] = str(fig)
+    if obs.tracking is not None:
+        from galileo_jax.observe.tracks import object_windows
+
+        path = out / "tracking.png"
+        radius = [1.3 * float(np.hypot(*w.half)) for w in object_windows(report.scene, calibration(report.scene.camera))]
+        tracking_figure(path, clip.frames, obs.pixels, obs.tracking.quality, obs.tracking.measured, radius, obs.fps,
+                        obs.tracking.methods, obs.tracking.quality_min,
+                        title=f"{report.video.name}: what the tracker saw")
+        report.outputs["tracking_figure"] = str(path)
     if overlay:
         from galileo_jax.report.overlay import write_overlay
 
@@ -469,6 +478,7 @@ def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: P
             "fps": obs.fps, "n_frames": int(len(obs.frame_times)), "release_time_s": obs.release_time,
             "position_sd_m": obs.position_sd, "velocity_sd_m_per_s": obs.velocity_sd,
             "moved": obs.moved, "fit_samples": int(np.sum(obs.mask)),
+            "tracking": None if obs.tracking is None else obs.tracking.summary(),
         },
         "settings": {**cfg.model_dump(), "seed": seed},
         "timings_s": report.timings,
@@ -593,7 +603,8 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
         "parameters": report.parameters, "identifiability": identifiability_statement(report.scenes[0]),
         "diagnostics": report.diagnostics, "rmse_per_video_m_per_s": rmse, "loglik_per_video": video_ll,
         "observations": [{"fps": o.fps, "n_frames": int(len(o.frame_times)), "release_time_s": o.release_time,
-                          "velocity_sd_m_per_s": o.velocity_sd, "fit_samples": int(np.sum(o.mask))} for o in observations],
+                          "velocity_sd_m_per_s": o.velocity_sd, "fit_samples": int(np.sum(o.mask)),
+                          "tracking": None if o.tracking is None else o.tracking.summary()} for o in observations],
         "settings": {**cfg.model_dump(), "seed": seed}, "timings_s": timings, "versions": package_versions(),
         "outputs": report.outputs,
     }

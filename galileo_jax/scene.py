@@ -85,9 +85,11 @@ class SceneObject(_Strict):
     cylinder ``[radius, height]`` (standing on a flat face), sphere ``[radius]``.
     ``mass`` (kg) and ``friction`` (sliding friction coefficient on ramp and floor) are
     known when given and free parameters when ``null``/absent. ``tracker`` chooses how the
-    object is followed in the video: ``features`` (KLT on its texture), ``outline`` (a round
+    object is followed in the video: ``features`` (KLT on its texture), ``colour`` (its
+    colour against the static background, for objects without texture), ``outline`` (a round
     outline, for rolling spheres or a pipe seen end-on, whose features turn with it) or
-    ``auto`` (outline for spheres, features otherwise). ``rolling`` gives a box-modelled
+    ``auto`` (outline for spheres; otherwise features where the object shows texture inside
+    its outline, colour where it does not; see :mod:`galileo_jax.observe.track`). ``rolling`` gives a box-modelled
     round object (a pipe, a can) its true cross-section, used only when the ``rolling``
     effect is on; its radius must be half the box's height.
     """
@@ -100,7 +102,7 @@ class SceneObject(_Strict):
     mass: PositiveFloat | None = None
     friction: float | None = Field(default=None, ge=0)
     rgba: tuple[float, float, float, float] | None = None
-    tracker: Literal["auto", "features", "outline"] = "auto"
+    tracker: Literal["auto", "features", "colour", "outline"] = "auto"
     rolling: Rolling | None = None
 
     @model_validator(mode="after")

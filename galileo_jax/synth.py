@@ -1,16 +1,18 @@
 """Synthetic ramp videos with exact ground truth, rendered with MuJoCo.
 
 :func:`render_video` simulates a scene in C MuJoCo for given masses and friction coefficients
-(and optionally hidden physical effects, see below) and renders it through an orthographic
-front camera (:mod:`galileo_jax.render`), so the pixel scale is exact; it writes three files
-next to each other (each atomically):
+(and optionally hidden physical effects, see below) and renders it through a front camera
+(:mod:`galileo_jax.render`): orthographic by default, so the pixel scale is exact at any
+depth, or perspective, exact in the plane of motion; it writes three files next to each other
+(each atomically):
 
 * ``<stem>.mp4``: the video (mp4v), ``width`` x ``height``, ``fps`` frames per second, with
   Gaussian pixel noise of SD ``noise_sd`` grey levels (before compression).
 * ``<stem>.yaml``: the input scene with its ``camera`` block replaced by the exact
-  calibration (``pixels_per_metre``, ``foot_pixel`` = pixel of the world origin, i.e. the ramp
-  foot in the plane of motion, ``ramp_direction: right``, ``roll_deg: 0``), and ``video.fps``
-  only when the container's frame rate differs from ``fps``.
+  calibration (``pixels_per_metre`` in the plane of motion, ``foot_pixel`` = pixel of the
+  world origin, i.e. the ramp foot in the plane of motion, ``ramp_direction: right`` or
+  ``left``, ``roll_deg: 0``), and ``video.fps`` only when the container's frame rate differs
+  from ``fps``.
 * ``<stem>.truth.json``: the ground truth (see :func:`truth_record`).
 
 Timeline: frame k is shown at t_k = k / fps, k = 0..N-1. The objects rest at their start
@@ -33,10 +35,37 @@ CLI::
 
     python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.15 --m2 0.3 \\
         --k2 0.25 --out out/ [--fps 30] [--duration S] [--noise 2] [--hand] [--seed 0] \\
-        [--random N] [--effect NAME[=VALUE] ...]
+        [--random N] [--effect NAME[=VALUE] ...] [--width 640] [--height 360] [--rest 0.3] \\
+        [--look checker|plain] [--colour R,G,B ...] [--camera orthographic|perspective] \\
+        [--distance 2.2] [--left | --direction right|left] [--blur N] [--shutter 0.5] \\
+        [--backdrop plain|clutter]
 
 ``--out`` is a ``.mp4`` path or a folder (``<scene name>.mp4``, or ``<scene name>_NNN.mp4``
 with ``--random N``).
+
+How the video looks (:func:`render_video`; the defaults give the original look):
+
+* ``--look plain``: each object one flat colour instead of the checker texture;
+  ``--colour R,G,B`` (0..1, once per object) sets the base colours of either look.
+* ``--camera perspective [--distance D]``: a pinhole D m (default 2.2) from the plane of
+  motion, looking straight at it, with fovy = 2 atan((H/2) / (scale D)): the written
+  ``pixels_per_metre`` and ``foot_pixel`` are exact in the plane of the objects' centres,
+  nearer surfaces (an object's front face) look slightly larger.
+* ``--left``: object 1 moves to the left of the image (the scene seen from its other side;
+  the scene file says ``ramp_direction: left``).
+* ``--blur N [--shutter S]``: motion blur, the average of N sub-frames spread over the
+  fraction S (default 0.5) of the frame interval around each frame time, each showing the
+  state at the nearest physics step (dt = 1 / (fps substeps)).
+* ``--backdrop clutter``: a backdrop wall with posters, shelves, cables and blobs (seeded by
+  ``--seed``) instead of the plain grey one.
+* Low resolutions (e.g. ``--width 320 --height 240``) work with all of these.
+
+The truth JSON then also records ``pixels_front`` (the projected centre of each object's face
+toward the camera) and with blur ``pixels_exposure`` (the mean projected centre over each
+frame's exposure); see :func:`truth_record`::
+
+    python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.2 --m2 0.3 --k2 0.25 \\
+        --camera perspective --look plain --left --blur 5 --backdrop clutter --out out/world.mp4
 
 Hidden effects: ``--effect NAME=VALUE`` (repeatable) simulates a physical effect of
 :mod:`galileo_jax.effects` that the base model lacks, e.g. ``--effect quadratic_drag=0.9``
@@ -127,22 +156,33 @@ RANDOM_MASS = (0.05, 1.0)
 REACH_DISTANCE = 0.005
 #: Random draws with effects: draws tried before giving up.
 MAX_REDRAWS = 20
+#: Most sub-frames per frame of a motion-blurred video.
+MAX_BLUR = 64
 
 
 class Motion(NamedTuple):
-    """The simulated motion at the video's frames.
+    """The simulated motion at the video's frames and at every physics step.
 
     Attributes:
         qpos: (N, nq) generalised positions at each frame (world frame, m and quaternions).
         positions: (N, n_objects, 2) world x and vertical z of each object's centre in m.
         release_frame: frames before release (objects at their start poses).
         fps: frames per second.
+        steps: (M, nq) generalised positions at every physics step from the release: row j
+            after j steps of dt = 1 / (fps * substeps) (row 0: the start pose), so frame
+            k >= ``release_frame`` is row (k - release_frame) * substeps; the rows run one
+            frame past the last frame (for exposures that end after it).
+        substeps: physics steps per frame.
+        qpos_adr: (n_objects,) each object's free-joint address in ``qpos``.
     """
 
     qpos: np.ndarray
     positions: np.ndarray
     release_frame: int
     fps: float
+    steps: np.ndarray
+    substeps: int
+    qpos_adr: tuple[int, ...]
 
     @property
     def n_frames(self) -> int:
@@ -157,6 +197,35 @@ class Motion(NamedTuple):
     def frame_times(self) -> np.ndarray:
         """(N,) frame times in s."""
         return np.arange(self.n_frames) / self.fps
+
+    def qpos_at(self, times) -> np.ndarray:
+        """(...) video times in s -> (..., nq) generalised positions at the nearest physics step.
+
+        Times before the release give the start pose, times past the simulated steps the last
+        step's; at the frame times this is exactly ``qpos``.
+        """
+        j = np.rint((np.asarray(times, dtype=float) - self.release_time) * self.fps * self.substeps).astype(int)
+        return self.steps[np.clip(j, 0, self.steps.shape[0] - 1)]
+
+
+def exposure_times(n_frames: int, fps: float, blur: int = 0, shutter: float = 0.5) -> np.ndarray:
+    """Sub-frame times of a motion-blurred video.
+
+    Frame k is exposed over [t_k - shutter / (2 fps), t_k + shutter / (2 fps)] (t_k = k / fps),
+    sampled at the midpoints of ``blur`` equal parts of that interval (its mean time is t_k).
+
+    Args:
+        n_frames: N frames.
+        fps: frames per second.
+        blur: sub-frames per frame; 0 or 1: none (the frame times).
+        shutter: exposure as a fraction of the frame interval, in (0, 1].
+
+    Returns:
+        (N, max(blur, 1)) video times in s.
+    """
+    s = max(int(blur), 1)
+    offsets = shutter * ((np.arange(s) + 0.5) / s - 0.5) / fps
+    return np.arange(n_frames)[:, None] / fps + offsets
 
 
 # --------------------------------------------------------------------------- parameters
@@ -489,7 +558,7 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
         settle_seconds: rest time that ends an automatic-length video, in s.
         effects: extra effects (names or Effects) simulated on top of the scene's own
             ``scene.effects``. With no effect at all, the base model is stepped with
-            ``mj_step(nstep=substeps)`` per frame.
+            ``mj_step``, ``substeps`` times per frame.
         effect_values: the effects' parameter values: a flat vector ordered as
             :func:`~galileo_jax.effects.runtime.effect_param_names`, or a dict by parameter
             name; ``None``: ``params.effects``, else the neutral values.
@@ -501,7 +570,8 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
     friction), the physics of the MJX rollout (:func:`galileo_jax.simulate.rollout`).
 
     Returns:
-        :class:`Motion`.
+        :class:`Motion`, with the state after every physics step in ``steps`` (for motion
+        blur: :meth:`Motion.qpos_at`).
 
     Raises:
         GalileoError: the simulation diverged, an effect does not apply to the scene, or the
@@ -518,29 +588,46 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
     mujoco.mj_forward(model, data)
     ctx = make_context(scene, index, dt)
     k_base = np.asarray(params.friction, dtype=np.float64).reshape(-1)
-    step_hooks = has_step_hooks(effs)
     limit = n_frames if n_frames is not None else max(rest_frames + 2, int(round(max_seconds * fps)))
     settle = max(1, int(round(settle_seconds * fps)))
     frames = [data.qpos.copy()] * (rest_frames + 1)
     apply_c_model(effs, values, model, data, index, ctx)  # release
     k_surface = np.asarray(surface_frictions(model.pair_friction, ctx, k_base))
+    step = _physics_step(effs, values, model, data, index, ctx, k_surface)
+    steps = [data.qpos.copy()]
     still = 0
     while len(frames) < limit:
-        if step_hooks:
-            for _ in range(substeps):
-                c_step(effs, values, model, data, index, ctx, k_surface)
-        else:  # model updates and release velocity only: plain steps are c_step without hooks
-            mujoco.mj_step(model, data, nstep=substeps)
-        if not np.all(np.isfinite(data.qpos)):
-            raise GalileoError("the simulation diverged (non-finite state); check the masses"
-                               + (", frictions and effect values" if effs else " and frictions"))
-        frames.append(data.qpos.copy())
-        step = np.linalg.norm(_centres(frames[-1], index) - _centres(frames[-2], index), axis=-1)
-        still = still + 1 if np.all(step < REST_SPEED / fps) else 0
+        _advance(step, substeps, data, steps, bool(effs))
+        frames.append(steps[-1])
+        moved = np.linalg.norm(_centres(frames[-1], index) - _centres(frames[-2], index), axis=-1)
+        still = still + 1 if np.all(moved < REST_SPEED / fps) else 0
         if n_frames is None and still >= settle:
             break
+    _advance(step, substeps, data, steps, bool(effs))  # one frame more, for exposures past the last frame
     qpos = np.stack(frames)
-    return Motion(qpos, _centres(qpos, index), rest_frames, fps)
+    return Motion(qpos, _centres(qpos, index), rest_frames, fps, np.stack(steps), substeps, index.qpos)
+
+
+def _physics_step(effects, values, model, data, index, ctx, k_surface):
+    """A function doing one physics step: :func:`~galileo_jax.effects.runtime.c_step` with the
+    effects' per-step hooks, else a plain ``mj_step`` (c_step without hooks)."""
+    if has_step_hooks(effects):
+        return lambda: c_step(effects, values, model, data, index, ctx, k_surface)
+    return lambda: mujoco.mj_step(model, data)
+
+
+def _advance(step, n: int, data: mujoco.MjData, out: list, effects: bool) -> None:
+    """Do ``n`` physics steps, appending a copy of ``qpos`` after each to ``out``.
+
+    Raises:
+        GalileoError: the state became non-finite.
+    """
+    for _ in range(n):
+        step()
+        out.append(data.qpos.copy())
+    if not np.all(np.isfinite(data.qpos)):
+        raise GalileoError("the simulation diverged (non-finite state); check the masses"
+                           + (", frictions and effect values" if effects else " and frictions"))
 
 
 def _effect_vector(effects, params: PhysParams, effect_values) -> np.ndarray:
@@ -578,13 +665,15 @@ def _renderer(model: mujoco.MjModel, view: render.View) -> mujoco.Renderer:
 def render_frames(model: mujoco.MjModel, view: render.View, qpos: np.ndarray, hand_pos: np.ndarray | None = None,
                   hand_quat: np.ndarray | None = None, noise_sd: float = 0.0,
                   rng: np.random.Generator | None = None) -> Iterator[np.ndarray]:
-    """Render frames of the front camera.
+    """Render frames of the front camera, optionally motion-blurred.
 
     Args:
         model: render model from :func:`galileo_jax.render.build_render_model`.
         view: its view (image size).
-        qpos: (N, nq) generalised positions, one row per frame.
-        hand_pos: (N, 3) hand mocap position per frame in m, or None (no hand).
+        qpos: (N, nq) generalised positions, one row per frame; or (N, S, nq), S sub-frames
+            per frame whose renders are averaged (in float, before the noise and the rounding
+            to 8 bits): motion blur (:func:`exposure_times`, :meth:`Motion.qpos_at`).
+        hand_pos: (N, 3) or (N, S, 3) (as ``qpos``) hand mocap position in m, or None (no hand).
         hand_quat: (4,) hand orientation.
         noise_sd: SD of Gaussian pixel noise in grey levels (0..255), independent per pixel
             and channel.
@@ -594,26 +683,44 @@ def render_frames(model: mujoco.MjModel, view: render.View, qpos: np.ndarray, ha
         (H, W, 3) uint8 BGR frames.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
+    qpos = np.asarray(qpos)
+    subs = qpos if qpos.ndim == 3 else qpos[:, None]
+    hands = None if hand_pos is None else np.asarray(hand_pos).reshape(subs.shape[:2] + (3,))
     data = mujoco.MjData(model)
     renderer = _renderer(model, view)
     try:
-        for k in range(qpos.shape[0]):
-            data.qpos[:] = qpos[k]
-            if hand_pos is not None:
-                data.mocap_pos[0] = hand_pos[k]
-                data.mocap_quat[0] = hand_quat
-            mujoco.mj_kinematics(model, data)
-            mujoco.mj_camlight(model, data)
-            renderer.update_scene(data, camera=render.CAMERA)
-            rgb = renderer.render()
-            if noise_sd > 0:
-                noisy = rng.standard_normal(rgb.shape, dtype=np.float32)
-                noisy *= np.float32(noise_sd)
-                noisy += rgb
-                rgb = np.clip(np.rint(noisy, out=noisy), 0, 255, out=noisy).astype(np.uint8)
-            yield np.ascontiguousarray(rgb[:, :, ::-1])
+        for k in range(subs.shape[0]):
+            images = [_render_state(renderer, model, data, subs[k, j], None if hands is None else hands[k, j],
+                                    hand_quat) for j in range(subs.shape[1])]
+            rgb = images[0] if len(images) == 1 else np.mean(images, axis=0, dtype=np.float32)
+            yield np.ascontiguousarray(_to_uint8(rgb, noise_sd, rng)[:, :, ::-1])
     finally:
         renderer.close()
+
+
+def _render_state(renderer: mujoco.Renderer, model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray,
+                  hand_pos: np.ndarray | None, hand_quat: np.ndarray | None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB render of the front camera at one state."""
+    data.qpos[:] = qpos
+    if hand_pos is not None:
+        data.mocap_pos[0] = hand_pos
+        data.mocap_quat[0] = hand_quat
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_camlight(model, data)
+    renderer.update_scene(data, camera=render.CAMERA)
+    return renderer.render()
+
+
+def _to_uint8(rgb: np.ndarray, noise_sd: float, rng: np.random.Generator) -> np.ndarray:
+    """An image (uint8 or float 0..255) plus Gaussian noise of SD ``noise_sd``, rounded to uint8."""
+    if noise_sd > 0:
+        noisy = rng.standard_normal(rgb.shape, dtype=np.float32)
+        noisy *= np.float32(noise_sd)
+        noisy += rgb
+        rgb = noisy
+    if rgb.dtype == np.uint8:
+        return rgb
+    return np.clip(np.rint(rgb, out=rgb), 0, 255, out=rgb).astype(np.uint8)
 
 
 def _temp_path(path: Path) -> Path:
@@ -683,7 +790,8 @@ def write_video(path: Path, frames: Iterator[np.ndarray], fps: float, size: tupl
 
 
 def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.View, *, noise_sd: float,
-                 hand: bool, seed: int, video: str, effects=()) -> dict:
+                 hand: bool, seed: int, video: str, effects=(), look: str = "checker", colours=None, blur: int = 0,
+                 shutter: float = 0.5, backdrop: str = "plain") -> dict:
     """The ground-truth JSON record of a rendered video.
 
     Keys: ``video`` (file name), ``scene`` (scene name), ``m1, k1, m2, k2`` (those of the
@@ -694,13 +802,22 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
     and the hidden ones; ``{}`` for the base model), ``hidden_effects`` (names of the
     simulated effects that the written scene file does not list), ``fps``, ``release_time``
     (s), ``release_frame``, ``n_frames``, ``width``, ``height`` (px), ``noise_sd`` (grey
-    levels), ``hand``, ``seed``, ``substeps``, ``pixels_per_metre``, ``foot_pixel`` ([u, v]),
-    ``moved`` (per object, whether it moved more than 1 mm), ``pixels`` (N x n_objects x
-    [u, v]: each object's centre in the image, px) and ``positions`` (N x n_objects x [x, z]:
-    world x and vertical of each centre, m).
+    levels), ``hand``, ``seed``, ``substeps``, ``pixels_per_metre`` (in the plane of motion),
+    ``foot_pixel`` ([u, v]), ``moved`` (per object, whether it moved more than 1 mm),
+    ``pixels`` (N x n_objects x [u, v]: each object's centre projected into the image at the
+    frame time, px), ``positions`` (N x n_objects x [x, z]: world x and vertical of each
+    centre, m), ``look``, ``colours`` (n_objects x [r, g, b], 0..1: each object's base colour),
+    ``camera`` ({``projection``, ``distance_m`` (null when orthographic), ``fovy_deg`` (null
+    when orthographic), ``direction``}), ``blur`` (sub-frames per frame, 0: none), ``shutter``
+    (exposure / frame interval), ``backdrop``, ``pixels_front`` (N x n_objects x [u, v]: the
+    centre of each object's face toward the camera, offset from its centre by half its width
+    (radius for cylinders and spheres) along the body's y axis, projected; equal to ``pixels``
+    in orthographic views) and, when ``blur`` >= 2, ``pixels_exposure`` (N x n_objects x
+    [u, v]: the mean over each frame's sub-frames of the projected centre, what the centroid
+    of a blurred image sees).
 
     ``effects``: the simulated effects (names or Effects, the scene's own included), in the
-    order of ``params.effects``.
+    order of ``params.effects``. ``colours``: as :func:`galileo_jax.render.object_colours`.
     """
     effects = scene_effects(scene, effects)
     rec = {"video": video, "scene": scene.name}
@@ -714,16 +831,34 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
     rec["effects"] = by_effect
     rec["hidden_effects"] = [e.name for e in effects if e.name not in scene.effects]
     travel = np.linalg.norm(motion.positions - motion.positions[0], axis=-1).max(axis=0)
+    centres = np.zeros((scene.n_objects, 3))
     rec.update({
         "fps": motion.fps, "release_time": motion.release_time, "release_frame": motion.release_frame,
         "n_frames": motion.n_frames, "width": view.width, "height": view.height, "noise_sd": noise_sd,
         "hand": hand, "seed": seed, "substeps": scene.simulation.substeps,
         "pixels_per_metre": view.scale, "foot_pixel": list(view.foot_pixel),
         "moved": [bool(d > 1e-3) for d in travel],
-        "pixels": np.round(view.world_to_pixel(motion.positions), 4).tolist(),
+        "pixels": _pixels(view, motion.qpos, motion.qpos_adr, centres),
         "positions": np.round(motion.positions, 7).tolist(),
+        "look": look, "colours": [list(c) for c in render.object_colours(scene, colours)],
+        "camera": {"projection": view.projection, "distance_m": view.distance if view.perspective else None,
+                   "fovy_deg": view.fovy if view.perspective else None, "direction": view.direction},
+        "blur": blur, "shutter": shutter, "backdrop": backdrop,
+        "pixels_front": _pixels(view, motion.qpos, motion.qpos_adr, render.front_offsets(scene, view)),
     })
+    if blur >= 2:
+        sub = motion.qpos_at(exposure_times(motion.n_frames, motion.fps, blur, shutter))
+        rec["pixels_exposure"] = _pixels(view, sub, motion.qpos_adr, centres, mean_axis=1)
     return rec
+
+
+def _pixels(view: render.View, qpos: np.ndarray, qpos_adr, local: np.ndarray, mean_axis: int | None = None) -> list:
+    """Projected body points (:func:`galileo_jax.render.body_points`) in px, rounded to 1e-4 px,
+    as nested lists; ``mean_axis``: average over that axis of ``qpos`` first (sub-frames)."""
+    px = view.project(render.body_points(qpos, qpos_adr, local))
+    if mean_axis is not None:
+        px = px.mean(axis=mean_axis)
+    return np.round(px, 4).tolist()
 
 
 def calibrated_scene(scene: Scene, view: render.View, container_fps: float, fps: float) -> Scene:
@@ -752,9 +887,26 @@ def _check_options(fps: float, duration: float | None, width: int, height: int, 
                                f"{rest_frames / fps:.3g} s; make it longer")
 
 
+def _check_style(scene: Scene, look: str, colours, camera: str, camera_distance: float, direction: str, blur: int,
+                 shutter: float, backdrop: str) -> None:
+    """Check :func:`render_video`'s look, camera and blur options (one-line :class:`GalileoError`)."""
+    render.check_choice(look, render.LOOKS, "look", "--look")
+    render.check_choice(backdrop, render.BACKDROPS, "backdrop", "--backdrop")
+    render.object_colours(scene, colours)
+    render.check_camera(scene, camera, camera_distance, direction)
+    if isinstance(blur, bool) or not isinstance(blur, (int, np.integer)) or not 0 <= blur <= MAX_BLUR:
+        raise GalileoError(f"--blur {blur}: give 0 (no motion blur) or a whole number of sub-frames per frame "
+                           f"in [2, {MAX_BLUR}]")
+    if not (math.isfinite(shutter) and 0 < shutter <= 1):
+        raise GalileoError(f"--shutter {shutter}: give the exposure as a fraction of the frame interval in (0, 1]")
+
+
 def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration: float | None = None,
                  width: int = 640, height: int = 360, noise_sd: float = 2.0, hand: bool = False,
-                 rest_frames: int | None = None, seed: int = 0, progress: bool = True, effects=None) -> dict:
+                 rest_frames: int | None = None, seed: int = 0, progress: bool = True, effects=None,
+                 look: str = "checker", colours=None, camera: str = "orthographic",
+                 camera_distance: float = render.CAMERA_DISTANCE, direction: str = "right", blur: int = 0,
+                 shutter: float = 0.5, backdrop: str = "plain") -> dict:
     """Simulate and render one ramp video with its calibrated scene file and ground truth.
 
     Args:
@@ -769,13 +921,27 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
         noise_sd: SD of Gaussian pixel noise in grey levels.
         hand: show a hand holding object 1 until the release, then leaving the frame.
         rest_frames: frames at rest before release (default ``round(0.3 * fps)``).
-        seed: seed of the pixel noise.
+        seed: seed of the pixel noise and of the cluttered backdrop.
         progress: show a progress bar.
         effects: hidden effects (names or :class:`~galileo_jax.effects.Effect`), simulated
             and drawn on top of the scene's own ``scene.effects``. They go into the truth
             (``effects``, ``hidden_effects`` and each parameter at top level), not into the
             written scene file, which describes only the setup (it keeps the scene's own
             ``effects``).
+        look: ``"checker"`` (textured objects) or ``"plain"`` (one flat colour each).
+        colours: (n_objects, 3) base RGB of the objects in [0, 1]; None: the scene's ``rgba``,
+            else red and blue.
+        camera: ``"orthographic"`` or ``"perspective"`` (a pinhole ``camera_distance`` m from the
+            plane of motion whose scale there is the written ``pixels_per_metre``; nearer
+            surfaces look larger). See :mod:`galileo_jax.render`.
+        camera_distance: perspective camera's distance from the plane of motion in m.
+        direction: ``"right"`` or ``"left"``: the image direction object 1 moves in (left: the
+            scene seen from its other side; the scene file says ``ramp_direction: left``).
+        blur: motion blur: render this many sub-frames per frame (>= 2) at
+            :func:`exposure_times` (the state at the nearest physics step,
+            :meth:`Motion.qpos_at`) and average them; 0 (or 1): none.
+        shutter: exposure time as a fraction of the frame interval (with ``blur``).
+        backdrop: ``"plain"`` (grey wall) or ``"clutter"`` (posters, shelves, cables, blobs).
 
     Returns:
         The truth record (as written to ``<stem>.truth.json``; see :func:`truth_record`).
@@ -790,6 +956,7 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
         raise GalileoError(f"output folder {out_path.parent} does not exist; create it first")
     rest_frames = max(1, int(round(REST_SECONDS * fps))) if rest_frames is None else int(rest_frames)
     _check_options(fps, duration, width, height, noise_sd, rest_frames)
+    _check_style(scene, look, colours, camera, camera_distance, direction, blur, shutter, backdrop)
     effs = scene_effects(scene, effects or ())
     check_applicable(effs, scene)
     phys = resolve_params(scene, params, effs)
@@ -799,17 +966,20 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
         min_frames = rest_frames + int(math.ceil((render.HAND_EXIT_TIME + 0.1) * fps))
         if motion.n_frames < min_frames:
             motion = simulate_motion(scene, phys, fps, rest_frames, min_frames, effects=effs)
-    view = render.frame_view(scene, motion.positions, width, height)
+    view = render.frame_view(scene, motion.positions, width, height, projection=camera, distance=camera_distance,
+                             direction=direction)
     model = render.build_render_model(scene, view, physics_timestep(fps, scene.simulation.substeps), hand=hand,
-                                      effects=effs)
+                                      effects=effs, look=look, colours=colours, backdrop=backdrop, seed=seed)
+    times = exposure_times(motion.n_frames, fps, blur, shutter)
     hand_pos = hand_quat = None
     if hand:
         hand_quat = render.hand_rest_pose(scene)[1]
-        hand_pos = np.stack([render.hand_position(scene, view, t, motion.release_time) for t in motion.frame_times])
-    frames = render_frames(model, view, motion.qpos, hand_pos, hand_quat, noise_sd, np.random.default_rng(seed))
+        hand_pos = np.array([[render.hand_position(scene, view, t, motion.release_time) for t in row] for row in times])
+    frames = render_frames(model, view, motion.qpos_at(times), hand_pos, hand_quat, noise_sd,
+                           np.random.default_rng(seed))
     container_fps = write_video(out_path, frames, fps, (width, height), motion.n_frames, progress)
     truth = truth_record(scene, phys, motion, view, noise_sd=noise_sd, hand=hand, seed=seed, video=out_path.name,
-                         effects=effs)
+                         effects=effs, look=look, colours=colours, blur=blur, shutter=shutter, backdrop=backdrop)
     yaml_path = out_path.with_suffix(".yaml")
     tmp = _temp_path(yaml_path)
     try:
@@ -851,8 +1021,50 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=640, help="image width in px (default 640)")
     p.add_argument("--height", type=int, default=360, help="image height in px (default 360)")
     p.add_argument("--rest", type=float, default=REST_SECONDS, help="seconds held at rest before release (default 0.3)")
+    p.add_argument("--look", choices=render.LOOKS, default="checker",
+                   help="objects: checker texture (default) or one plain colour")
+    p.add_argument("--colour", action="append", type=_colour, metavar="R,G,B",
+                   help="base colour of an object, components in [0, 1] (repeatable: once per object, in order; "
+                        "default: the scene's rgba, else red and blue)")
+    p.add_argument("--camera", choices=render.PROJECTIONS, default="orthographic",
+                   help="orthographic (default: exact scale at any depth) or perspective (a pinhole --distance m "
+                        "from the plane of motion, exact scale in that plane)")
+    p.add_argument("--distance", type=float, default=render.CAMERA_DISTANCE,
+                   help=f"perspective camera's distance from the plane of motion in m "
+                        f"(default {render.CAMERA_DISTANCE})")
+    p.add_argument("--direction", choices=render.DIRECTIONS,
+                   help="image direction object 1 moves in: right (default) or left (the scene seen from behind)")
+    p.add_argument("--left", action="store_true", help="same as --direction left")
+    p.add_argument("--blur", type=int, default=0, metavar="N",
+                   help="motion blur: average N >= 2 sub-frames per frame over the --shutter (default 0: none)")
+    p.add_argument("--shutter", type=float, default=0.5,
+                   help="exposure as a fraction of the frame interval, in (0, 1] (default 0.5; with --blur)")
+    p.add_argument("--backdrop", choices=render.BACKDROPS, default="plain",
+                   help="backdrop wall: plain grey (default) or clutter (posters, shelves, cables, blobs)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
+
+
+def _colour(text: str) -> tuple[float, ...]:
+    """argparse type of ``--colour R,G,B``: three numbers (their range is checked by render_video)."""
+    try:
+        rgb = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3:
+        raise argparse.ArgumentTypeError(f"{text!r} is not R,G,B (three numbers in [0, 1], e.g. 0.2,0.5,0.9)")
+    return rgb
+
+
+def _direction(args: argparse.Namespace) -> str:
+    """The image direction from ``--direction`` and ``--left``.
+
+    Raises:
+        GalileoError: ``--left`` with ``--direction right``.
+    """
+    if args.left and args.direction == "right":
+        raise GalileoError("--left contradicts --direction right; give one of them")
+    return "left" if args.left else args.direction or "right"
 
 
 def _outputs(out: str, stem: str, count: int, random: bool) -> list[Path]:
@@ -945,6 +1157,9 @@ def main(argv: list[str] | None = None) -> int:
     rest_frames = max(1, int(round(args.rest * args.fps)))
     n_frames = None if args.duration is None else int(round(args.duration * args.fps))
     names = ["m1", "k1", "m2", "k2"] + list(effect_param_names(effs))
+    style = dict(look=args.look, colours=args.colour, camera=args.camera, camera_distance=args.distance,
+                 direction=_direction(args), blur=args.blur, shutter=args.shutter, backdrop=args.backdrop)
+    _check_style(scene, **style)
     if args.random and effs:  # the draws simulate the video: check its options first
         _check_options(args.fps, args.duration, args.width, args.height, args.noise, rest_frames)
     for i, path in enumerate(paths):
@@ -958,7 +1173,7 @@ def main(argv: list[str] | None = None) -> int:
         truth = render_video(scene, params, path, fps=args.fps, duration=args.duration, width=args.width,
                              height=args.height, noise_sd=args.noise, hand=args.hand,
                              rest_frames=rest_frames, seed=args.seed + i,
-                             progress=not args.quiet, effects=effect_names)
+                             progress=not args.quiet, effects=effect_names, **style)
         values = ", ".join(f"{k}={truth[k]:.4g}" for k in names if k in truth)
         hidden = f" (hidden: {', '.join(truth['hidden_effects'])})" if truth["hidden_effects"] else ""
         print(f"{path}: {truth['n_frames']} frames at {truth['fps']:g} fps, {values}{hidden}")

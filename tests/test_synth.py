@@ -18,6 +18,15 @@ MuJoCo motion of :func:`synth.simulate_motion` matches the MJX rollout with the 
 effect gives the rolling acceleration g sin(theta) / (1 + alpha); a rendered video with a hidden
 effect has it in its truth and not in its scene file; random draws with effects are
 informative; bad ``--effect`` options give one line.
+
+Looks, cameras and blur (:func:`synth.render_video`'s ``look``, ``colours``, ``camera``,
+``direction``, ``blur``, ``backdrop``): in perspective, seen from either side, each object's
+segmentation mask fills the convex hull of ``View.project`` of its 8 box corners; the written
+calibration maps the truth positions to the truth pixels for left and right perspective
+views; the near faces (``pixels_front``) look larger by D / (D - w/2); the physics-step states
+hold the frames exactly and ``pixels_exposure`` is the mean of the sub-frames' projected
+centres; blur changes moving frames only; a plain object is one colour, a checker one is not;
+the cluttered backdrop is seeded and visual only; bad look/camera/blur options give one line.
 """
 
 from __future__ import annotations
@@ -418,7 +427,7 @@ def test_cli_random_with_effect(tmp_path, capsys):
     assert code == 0 and json.loads((tmp_path / "none.truth.json").read_text())["effects"] == {}
 
 
-@pytest.mark.parametrize("effect, message", [
+@pytest.mark.parametrize("option, message", [
     (["--effect", "foo"], "unknown effect 'foo'"),
     (["--effect", "quadratic_drag"], "needs a value"),
     (["--effect", "quadratic_drag=abc"], "not a number"),
@@ -428,14 +437,253 @@ def test_cli_random_with_effect(tmp_path, capsys):
     (["--effect", "rolling=1"], "has no parameter"),
     (["--effect", "none", "--effect", "linear_drag=1"], "none"),
     (["--effect", "linear_drag=1", "--effect", "linear_drag=2"], "twice"),
+    (["--camera", "fisheye"], "invalid choice"),
+    (["--look", "shiny"], "invalid choice"),
+    (["--blur", "-1"], "--blur -1"),
+    (["--blur", "2.5"], "invalid int"),
+    (["--shutter", "0"], "--shutter"),
+    (["--colour", "2,0,0"], "colour 2,0,0"),
+    (["--colour", "1,0"], "R,G,B"),
+    (["--colour", "1,0,0"], "one R,G,B per object"),
+    (["--camera", "perspective", "--distance", "0.1"], "--distance"),
+    (["--left", "--direction", "right"], "contradicts"),
 ])
-def test_cli_bad_effect_is_one_line(effect, message, tmp_path, monkeypatch, capsys):
+def test_cli_bad_option_is_one_line(option, message, tmp_path, monkeypatch, capsys):
+    """Bad --effect, look, camera and blur options: one line on stderr, no video."""
     monkeypatch.chdir(tmp_path)
     args = ["--scene", str(SCENE), *sum([["--" + k, str(v)] for k, v in PARAMS.items()], []), "--out", "x.mp4",
-            "--width", "64", "--height", "48", "--duration", "0.5", *effect]
+            "--width", "64", "--height", "48", "--duration", "0.5", *option]
     code = synth.main(args)
     err = capsys.readouterr().err.strip()
     assert code != 0
     assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
     assert message in err
     assert not list(tmp_path.rglob("*.mp4"))
+
+
+# --------------------------------------------------------------------------- looks, cameras, blur
+#: Options of the "world-like" video: perspective (a near camera, so that depth shows), plain
+#: objects, seen from behind (object 1 moves left), motion blur, cluttered backdrop.
+WORLD = dict(look="plain", camera="perspective", camera_distance=1.0, direction="left", blur=3, shutter=0.8,
+             backdrop="clutter")
+
+
+@pytest.fixture(scope="module")
+def motion(scene):
+    return synth.simulate_motion(scene, synth.resolve_params(scene, PARAMS), FPS, REST, round(DURATION * FPS))
+
+
+@pytest.fixture(scope="module")
+def world_video(scene, tmp_path_factory):
+    path = tmp_path_factory.mktemp("world") / "world.mp4"
+    truth = synth.render_video(scene, PARAMS, path, fps=FPS, duration=DURATION, width=W, height=H, noise_sd=0.0,
+                               hand=True, rest_frames=REST, seed=3, progress=False, **WORLD)
+    return path, truth
+
+
+def _segment(model, view, qpos, names):
+    """Boolean masks (len(names), H, W) of the named geoms in a segmentation render at ``qpos``."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_camlight(model, data)
+    renderer = mujoco.Renderer(model, view.height, view.width)
+    try:
+        renderer.enable_segmentation_rendering()
+        renderer.update_scene(data, camera=render.CAMERA)
+        seg = renderer.render()
+    finally:
+        renderer.close()
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in names]
+    return np.stack([(seg[:, :, 0] == g) & (seg[:, :, 1] == mujoco.mjtObj.mjOBJ_GEOM) for g in ids])
+
+
+def _box_corners(scene, i):
+    """(8, 3) corners of box object ``i`` in its body frame (m)."""
+    half = np.asarray(scene.objects[i].size) / 2
+    return np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]) * half
+
+
+@pytest.mark.parametrize("direction", ["right", "left"])
+def test_perspective_silhouettes_fill_projected_boxes(scene, motion, direction):
+    """Perspective camera 1 m away (320 x 192 px): each object's segmentation mask lies inside the
+    convex hull of View.project of its 8 box corners (grown by 1 px) and covers most of it."""
+    view = render.frame_view(scene, motion.positions, 2 * W, 2 * H, projection="perspective", distance=1.0,
+                             direction=direction)
+    model = render.build_render_model(scene, view, 1.0 / 240.0, look="plain")
+    gap = np.abs(motion.positions[:, 0, 0] - motion.positions[:, 1, 0]) - 0.5 * sum(o.length for o in scene.objects)
+    for k in (0, int(np.flatnonzero(gap > 0.005)[-1])):
+        masks = _segment(model, view, motion.qpos[k], ["object1", "object2"])
+        for i, mask in enumerate(masks):
+            corners = np.stack([render.body_points(motion.qpos[k], motion.qpos_adr,
+                                                   np.broadcast_to(c, (scene.n_objects, 3)))[i]
+                                for c in _box_corners(scene, i)])
+            hull = cv2.convexHull(view.project(corners).astype(np.float32))
+            v, u = np.nonzero(mask)
+            inside = [cv2.pointPolygonTest(hull, (float(a), float(b)), True) for a, b in zip(u, v)]
+            assert min(inside) > -1.0, (k, i, min(inside))  # measured >= 0 (ortho corners: -2.5 to -4 px)
+            # Mask area = hull area within 0.15 px times the perimeter (measured 0.08; corners
+            # projected from 1.3 m instead of 1 m: 0.23 to 0.31).
+            area = cv2.contourArea(hull)
+            assert abs(mask.sum() - area) < 0.15 * cv2.arcLength(hull, True), (k, i)
+
+
+@pytest.mark.parametrize("direction", ["right", "left"])
+def test_perspective_calibration_maps_world_to_truth_pixels(scene, tmp_path, direction):
+    path = tmp_path / "p.mp4"
+    truth = synth.render_video(scene, PARAMS, path, fps=FPS, duration=0.6, width=96, height=64, noise_sd=0.0,
+                               rest_frames=2, progress=False, camera="perspective", direction=direction)
+    cam = load_scene(path.with_suffix(".yaml")).camera
+    assert cam.ramp_direction == direction and cam.pixels_per_metre == truth["pixels_per_metre"]
+    px = calibration(cam).world_to_pixel(np.asarray(truth["positions"]))
+    assert np.abs(px - np.asarray(truth["pixels"])).max() < 0.5
+    # Object 1 moves to the image's right or left.
+    du = truth["pixels"][-1][0][0] - truth["pixels"][0][0][0]
+    assert du * (1 if direction == "right" else -1) > 5
+    view = render.View((0.0, 0.0), truth["pixels_per_metre"], 96, 64, "perspective", 2.2, direction)
+    assert truth["camera"] == {"projection": "perspective", "distance_m": 2.2, "fovy_deg": pytest.approx(view.fovy),
+                               "direction": direction}
+
+
+def test_world_video_truth_and_scene(world_video, scene):
+    path, truth = world_video
+    assert json.loads(path.with_suffix(".truth.json").read_text()) == truth
+    assert {k: truth[k] for k in ("look", "blur", "shutter", "backdrop")} == {
+        k: WORLD[k] for k in ("look", "blur", "shutter", "backdrop")}
+    assert truth["camera"]["projection"] == "perspective" and truth["camera"]["direction"] == "left"
+    assert truth["colours"] == [list(c[:3]) for c in render.OBJECT_COLOURS]
+    n = truth["n_frames"]
+    for key in ("pixels", "pixels_front", "pixels_exposure"):
+        assert np.shape(truth[key]) == (n, scene.n_objects, 2), key
+    written = load_scene(path.with_suffix(".yaml"))
+    assert written.camera.ramp_direction == "left"
+    px = calibration(written.camera).world_to_pixel(np.asarray(truth["positions"]))
+    assert np.abs(px - np.asarray(truth["pixels"])).max() < 0.5
+    # The near faces (1 m away, 3 cm nearer) sit 3 % further from the optical axis than the centres.
+    axis = np.array([W / 2 - 0.5, H / 2 - 0.5])
+    ratio = np.linalg.norm(np.asarray(truth["pixels_front"]) - axis, axis=-1) / np.linalg.norm(
+        np.asarray(truth["pixels"]) - axis, axis=-1)
+    far = np.linalg.norm(np.asarray(truth["pixels"]) - axis, axis=-1) > 5
+    np.testing.assert_allclose(ratio[far], 1.0 / 0.97, rtol=1e-3)
+
+
+def test_orthographic_front_pixels_are_the_centres(video):
+    _, truth = video
+    np.testing.assert_allclose(truth["pixels_front"], truth["pixels"], atol=1e-3)
+    assert "pixels_exposure" not in truth and truth["blur"] == 0
+    assert truth["camera"] == {"projection": "orthographic", "distance_m": None, "fovy_deg": None, "direction": "right"}
+
+
+def test_motion_steps_hold_the_frames(motion, scene):
+    """Per physics step qpos: row (k - release) * substeps is frame k; qpos_at the frame times is qpos."""
+    sub = scene.simulation.substeps
+    assert motion.substeps == sub and motion.steps.shape[0] == (motion.n_frames - REST) * sub + 1
+    for k in range(REST, motion.n_frames):
+        np.testing.assert_array_equal(motion.steps[(k - REST) * sub], motion.qpos[k])
+    np.testing.assert_array_equal(motion.qpos_at(motion.frame_times), motion.qpos)
+    times = synth.exposure_times(motion.n_frames, FPS, 4, 0.5)
+    assert times.shape == (motion.n_frames, 4)
+    np.testing.assert_allclose(times.mean(axis=1), motion.frame_times)
+    np.testing.assert_allclose(np.ptp(times, axis=1), 0.5 * 3 / 4 / FPS)
+    rest = motion.qpos_at(times[:REST])
+    assert np.all(rest == motion.qpos[0])
+
+
+def test_blurred_exposure_pixels_lie_on_the_subframe_path(world_video, motion, scene):
+    """pixels_exposure is the mean of the sub-frames' projected centres: the pixels at rest, and
+    between the first and last sub-frame's pixels while moving."""
+    _, truth = world_video
+    cam = truth["camera"]
+    view = render.frame_view(scene, motion.positions, W, H, projection=cam["projection"], distance=cam["distance_m"],
+                             direction=cam["direction"])
+    assert view.foot_pixel == pytest.approx(truth["foot_pixel"])
+    sub = motion.qpos_at(synth.exposure_times(motion.n_frames, FPS, WORLD["blur"], WORLD["shutter"]))
+    sub_px = view.project(render.body_points(sub, motion.qpos_adr, np.zeros((scene.n_objects, 3))))  # (N, S, n, 2)
+    exposure, pixels = np.asarray(truth["pixels_exposure"]), np.asarray(truth["pixels"])
+    np.testing.assert_allclose(exposure, sub_px.mean(axis=1), atol=1e-3)
+    np.testing.assert_array_equal(exposure[:REST], pixels[:REST])
+    lo, hi = sub_px.min(axis=1), sub_px.max(axis=1)
+    assert np.all((exposure >= lo - 1e-3) & (exposure <= hi + 1e-3))
+    assert (hi - lo).max() > 2.0  # the sub-frames really spread along the path (measured 2.9 px)
+
+
+def test_blur_smears_moving_objects_only(scene, motion):
+    """noise 0: a frame at rest renders the same with and without blur; a moving one does not."""
+    view = render.frame_view(scene, motion.positions, W, H)
+    model = render.build_render_model(scene, view, 1.0 / 240.0)
+    speed = np.linalg.norm(np.gradient(motion.positions[:, 0], axis=0), axis=-1)
+    frames = np.array([0, int(np.argmax(speed))])
+    times = synth.exposure_times(motion.n_frames, FPS, 4, 1.0)[frames]
+    sharp = list(synth.render_frames(model, view, motion.qpos[frames]))
+    blurred = list(synth.render_frames(model, view, motion.qpos_at(times)))
+    np.testing.assert_array_equal(sharp[0], blurred[0])
+    assert np.abs(sharp[1].astype(int) - blurred[1]).max() > 50
+
+
+@pytest.mark.parametrize("look, spread", [("plain", (0, 4)), ("checker", (20, 255))])
+def test_object_look_colour_spread(scene, motion, look, spread):
+    """Inside an object's silhouette (eroded by 2 px): a plain object is one colour (SD < 4 grey
+    levels), a checker one is not; given colours are used."""
+    colours = [(0.1, 0.7, 0.2), (0.7, 0.2, 0.6)]
+    view = render.frame_view(scene, motion.positions, 2 * W, 2 * H)
+    model = render.build_render_model(scene, view, 1.0 / 240.0, look=look, colours=colours)
+    image = next(synth.render_frames(model, view, motion.qpos[:1]))[:, :, ::-1]  # RGB
+    for i, mask in enumerate(_segment(model, view, motion.qpos[0], ["object1", "object2"])):
+        inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        assert inner.sum() > 100
+        pix = image[inner].astype(float)
+        assert spread[0] <= pix.std(axis=0).max() <= spread[1], (look, i)
+        assert np.argmax(pix.mean(axis=0)) == np.argmax(colours[i])
+
+
+def test_clutter_backdrop_is_seeded_and_visual_only(scene):
+    a, b = (render.clutter_texture(200, 120, 400.0, seed=s) for s in (1, 2))
+    assert a.shape == (120, 200, 3) and a.dtype == np.uint8
+    np.testing.assert_array_equal(a, render.clutter_texture(200, 120, 400.0, seed=1))
+    assert np.abs(a.astype(int) - b).mean() > 10 and a.std() > 20
+    view = render.View((0.0, 0.1), 200.0, 64, 48, "perspective", 2.2, "left")
+    plain = synth.build_model(scene)[0]
+    fancy = render.build_render_model(scene, view, 1.0 / 240.0, hand=True, backdrop="clutter", look="plain")
+    assert model_index(fancy, 2).qpos == model_index(plain, 2).qpos and fancy.nq == plain.nq
+
+
+def test_view_projection():
+    """Orthographic: depth does not matter; perspective: the plane y = 0 keeps the scale, nearer
+    points spread out from the optical axis; left views mirror u."""
+    xz = np.array([[0.1, 0.05], [-0.2, 0.3]])
+    for direction in ("right", "left"):
+        ortho = render.View((0.0, 0.1), 500.0, 320, 240, direction=direction)
+        persp = ortho._replace(projection="perspective", distance=2.0)
+        near = np.insert(xz, 1, -ortho.sign * 0.1, axis=1)  # 0.1 m nearer the camera
+        np.testing.assert_allclose(ortho.project(near), ortho.world_to_pixel(xz))
+        np.testing.assert_allclose(persp.project(np.insert(xz, 1, 0.0, axis=1)), ortho.world_to_pixel(xz))
+        axis = np.array([159.5, 119.5])
+        np.testing.assert_allclose(persp.project(near) - axis, (ortho.world_to_pixel(xz) - axis) * 2.0 / 1.9)
+        assert persp.fovy == pytest.approx(math.degrees(2 * math.atan(120 / 1000)))
+    right, left = render.View((0.0, 0.1), 500.0, 320, 240), render.View((0.0, 0.1), 500.0, 320, 240, direction="left")
+    np.testing.assert_allclose(right.world_to_pixel(xz)[:, 0] - 159.5, 159.5 - left.world_to_pixel(xz)[:, 0])
+    assert left.camera_block().ramp_direction == "left"
+
+
+def test_cli_world_options(tmp_path, capsys):
+    out = tmp_path / "w.mp4"
+    code = synth.main(["--scene", str(SCENE), *sum([["--" + k, str(v)] for k, v in PARAMS.items()], []),
+                       "--out", str(out), "--width", "96", "--height", "64", "--duration", "0.5", "--rest", "0.1",
+                       "--camera", "perspective", "--look", "plain", "--left", "--blur", "3", "--backdrop", "clutter",
+                       "--colour", "0.9,0.8,0.1", "--colour", "0.1,0.2,0.9", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    assert out.is_file() and out.with_suffix(".yaml").is_file()
+    truth = json.loads(out.with_suffix(".truth.json").read_text())
+    assert (truth["look"], truth["blur"], truth["backdrop"]) == ("plain", 3, "clutter")
+    assert truth["camera"]["projection"] == "perspective" and truth["camera"]["direction"] == "left"
+    assert truth["colours"] == [[0.9, 0.8, 0.1], [0.1, 0.2, 0.9]] and "pixels_exposure" in truth
+    assert load_scene(out.with_suffix(".yaml")).camera.ramp_direction == "left"
+
+
+def test_render_video_bad_world_options(scene, tmp_path):
+    for kwargs, message in [({"camera": "fisheye"}, "camera 'fisheye'"), ({"direction": "up"}, "direction 'up'"),
+                            ({"backdrop": "jungle"}, "backdrop"), ({"blur": 1.5}, "--blur"),
+                            ({"colours": [(0.1, 0.2)]}, "R,G,B")]:
+        with pytest.raises(GalileoError, match=message):
+            synth.render_video(scene, PARAMS, tmp_path / "x.mp4", duration=0.5, progress=False, **kwargs)
+    assert not list(tmp_path.iterdir())

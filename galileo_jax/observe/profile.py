@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +19,10 @@ from scipy.optimize import least_squares
 
 from galileo_jax.calibration import calibration
 from galileo_jax.model import object_start_pose
-from galileo_jax.observation import Observation, profile_from_positions
-from galileo_jax.observe.track import (Tracks, background_model, locate_objects, never_moves_error, path_direction,
-                                      track_scene)
+from galileo_jax.observation import Observation, TrackingInfo, profile_from_positions
+from galileo_jax.observe.find import locate_objects, never_moves_error
+from galileo_jax.observe.track import SceneTracks, track_scene
+from galileo_jax.observe.tracks import Tracks, background_model, estimate_noise_sd, path_direction
 from galileo_jax.observe.video import VideoClip, read_video
 from galileo_jax.scene import Scene
 
@@ -31,47 +31,10 @@ from galileo_jax.scene import Scene
 NOISE_FLOOR_PX = 0.02
 #: Samples dropped before the release (frames), when the scene gives no fit window.
 PRE_RELEASE_FRAMES = 2
-
-
-def estimate_noise_sd(trace: np.ndarray, moving: np.ndarray | None = None) -> float:
-    """Tracking-noise SD of one position trace, from its third differences.
-
-    For white noise of SD sigma, the third difference p[k+3] - 3 p[k+2] + 3 p[k+1] - p[k]
-    has SD sqrt(20) sigma, while a motion of piecewise-constant acceleration (sliding on the
-    ramp or the floor, resting) contributes exactly zero except in the few samples around a
-    change of acceleration (release, the ramp's foot, the collision, the stop), and a slowly
-    varying acceleration (drag, rolling, tipping over the foot) contributes only its tiny
-    jerk. So no model of the motion is needed: a robust scale (1.4826 x the median absolute
-    third difference) flags those few samples (beyond 3.5 robust SDs), and the root mean
-    square of the others, over sqrt(20), is the estimate. Measured on white noise: bias -2%,
-    relative SD 0.17 for 40 samples (the MAD alone: 0.25). Fitting quadratics to chunks of
-    the trace would scatter less (0.13) but mistakes any unflagged kink for noise (it
-    doubled the estimate across a ramp's foot), so it is not used. Where ``moving`` marks
-    enough frames (>= 8 windows of 4), only windows of moving frames are used: a resting
-    object's KLT track is much steadier than a moving one's, and the moving part is what
-    the fit is about.
-
-    Args:
-        trace: (N,) positions (any unit; the SD comes back in the same unit).
-        moving: (N,) bool, frames in which the object moves, or None.
-
-    Returns:
-        The SD (>= 0; 0 for traces shorter than 4 samples).
-    """
-    x = np.asarray(trace, float)
-    if len(x) < 4:
-        return 0.0
-    d3 = np.diff(x, 3)
-    if moving is not None:
-        m = np.asarray(moving, bool)
-        window_moving = m[:-3] & m[1:-2] & m[2:-1] & m[3:]
-        if window_moving.sum() >= 8:
-            d3 = d3[window_moving]
-    robust = 1.4826 * float(np.median(np.abs(d3)))
-    kept = d3[np.abs(d3) <= 3.5 * robust]
-    if robust == 0 or len(kept) == 0:
-        return robust / math.sqrt(20.0)
-    return math.sqrt(float(np.mean(kept ** 2)) / 20.0)
+#: Measurements of lower quality (:class:`~galileo_jax.observe.tracks.Tracks`) are left out
+#: of the fit: half of a clean measurement's agreement (half the object seen, or 4 of 8
+#: KLT features).
+QUALITY_MIN = 0.5
 
 
 def _moving_frames(px: np.ndarray, valid: np.ndarray, threshold: float) -> np.ndarray:
@@ -80,11 +43,6 @@ def _moving_frames(px: np.ndarray, valid: np.ndarray, threshold: float) -> np.nd
     d = np.linalg.norm(px[2:] - px[:-2], axis=-1)
     speed[1:-1] = d
     return (speed > threshold) & valid
-
-
-def _rest_position(px: np.ndarray, onset: int) -> np.ndarray:
-    """Median position over the frames before ``onset`` (the object at rest)."""
-    return np.median(px[: max(onset, 1)], axis=0)
 
 
 def _onset(s: np.ndarray, threshold: float, run: int = 3) -> int | None:
@@ -122,11 +80,13 @@ def estimate_release_time(s: np.ndarray, fps: float, sigma: float, s_max: float 
     t = np.arange(len(s)) / fps
     limit = np.inf if s_max is None else s_max
     last = k0
-    while last + 1 < len(s) and last + 1 <= k0 + 12 and s[last + 1] <= limit:
+    while last + 1 < len(s) and last + 1 <= k0 + 12 and not s[last + 1] > limit:
         last += 1
     first = max(0, k0 - 12)
     last = max(last, min(k0 + 2, len(s) - 1))
     tt, ss = t[first: last + 1], s[first: last + 1]
+    keep = np.isfinite(ss)  # frames not measured (NaN) are left out
+    tt, ss = tt[keep], ss[keep]
     moving = ss > thr
     # start: sqrt(s) is linear in t after release
     if moving.sum() >= 2:
@@ -227,20 +187,27 @@ def observe(video_path_or_clip, scene: Scene, fps: float | None = None, progress
         start_px = np.asarray(scene.camera.start_pixels, float)
     else:
         start_px, start_frame = locate_objects(clip.frames, scene, calib, background)
-    tracks = track_scene(clip.frames, start_px, scene, calib, start_frame=start_frame, background=background,
-                         fps=clip.fps, progress=progress)
-    return observation_from_tracks(tracks, scene, clip.fps, anchor_frame=start_frame)
+    tracked = track_scene(clip.frames, start_px, scene, calib, start_frame=start_frame, background=background,
+                          fps=clip.fps, progress=progress)
+    return observation_from_tracks(tracked, scene, clip.fps, anchor_frame=start_frame)
 
 
-def observation_from_tracks(tracks: Tracks, scene: Scene, fps: float, anchor_frame: int = 0) -> Observation:
+def observation_from_tracks(tracks: Tracks | SceneTracks, scene: Scene, fps: float, anchor_frame: int = 0
+                            ) -> Observation:
     """Build the :class:`Observation` from pixel tracks (see :func:`observe`); each object's
     pixel in frame ``anchor_frame`` (where it rests, before the release) is taken as its
-    start position in the scene.
+    start position in the scene. Frames measured with a quality below :data:`QUALITY_MIN`
+    count as not measured (left out of the fit and of the noise estimate).
 
     Raises:
         TrackingError: object 1 never moves.
     """
-    pixels, valid = tracks.pixels, tracks.valid
+    info = None
+    if isinstance(tracks, SceneTracks):
+        info = (tracks.methods, tracks.cross_check_px)
+        tracks = tracks.tracks
+    pixels = tracks.pixels
+    valid = tracks.valid & (tracks.quality >= QUALITY_MIN)
     N, n = valid.shape
     times = np.arange(N) / fps
     positions = _positions(pixels, pixels[anchor_frame], scene)
@@ -250,6 +217,7 @@ def observation_from_tracks(tracks: Tracks, scene: Scene, fps: float, anchor_fra
     for i in range(n):
         sigma_px = float(sd[2 * i: 2 * i + 2].max() * scale)
         s, moved[i] = _travel(pixels[:, i], valid[:, i], path_direction(scene, calib, i), sigma_px)
+        s = np.where(valid[:, i], s, np.nan)
         if i == 0:
             obj = scene.objects[0]
             s_max = 0.8 * (obj.start - obj.length / 2) * scale if scene.placement(0) == "ramp" else None
@@ -261,6 +229,8 @@ def observation_from_tracks(tracks: Tracks, scene: Scene, fps: float, anchor_fra
         profile=profile_from_positions(positions, times), position_sd=sd,
         mask=_mask(times, valid, release, scene, fps, _last_motion(pixels, valid, sd.reshape(n, 2).max(axis=1) * scale)),
         release_time=release, fps=float(fps), moved=moved,
+        tracking=None if info is None else TrackingInfo(info[0], np.asarray(tracks.quality, float), valid,
+                                                        int(anchor_frame), np.asarray(info[1], float), QUALITY_MIN),
     )
 
 
@@ -273,9 +243,15 @@ def _trace_sd(positions: np.ndarray, pixels: np.ndarray, valid: np.ndarray, scal
 
 def _travel(pixels: np.ndarray, valid: np.ndarray, direction: np.ndarray, sigma_px: float) -> tuple[np.ndarray, bool]:
     """Distance (N,) in px travelled along ``direction`` from the rest position (the median
-    before the motion starts), and whether the object moved (> 2 px and 6 noise SDs)."""
+    of the measured frames before the motion starts), and whether the object moved (> 2 px
+    and 6 noise SDs)."""
     thr = max(1.0, 6.0 * sigma_px)
-    k0 = _onset((pixels - pixels[0]) @ direction, thr)
-    rest = _rest_position(pixels, k0 if k0 is not None else len(pixels))
+    if not valid.any():
+        return np.zeros(len(pixels)), False
+    first = pixels[np.flatnonzero(valid)[0]]
+    k0 = _onset(np.where(valid, (pixels - first) @ direction, np.nan), thr)
+    end = k0 if k0 is not None else len(pixels)
+    before = valid[:end] if valid[:end].any() else valid
+    rest = np.median(pixels[: len(before)][before], axis=0)
     dist = np.linalg.norm(pixels - rest, axis=-1)[valid]
     return (pixels - rest) @ direction, bool(dist.max() > max(2.0, thr))

@@ -1,4 +1,5 @@
-"""Figures: observed vs simulated velocity profiles, with residuals."""
+"""Figures: observed vs simulated velocity profiles with residuals, criticism's residuals and model
+comparison, and what the tracker saw (crops along each track, measurement quality)."""
 
 from __future__ import annotations
 
@@ -266,3 +267,73 @@ def model_comparison_figure(path: str | Path, models: list[dict], title: str = "
            "delta_loglik": np.where(np.isfinite(dll), np.array([b.get_height() for b in bars2]), np.nan)}
     _save(fig, path, None, layout=False)
     return out
+
+
+def tracking_figure(path: str | Path, frames: np.ndarray, pixels: np.ndarray, quality: np.ndarray,
+                    measured: np.ndarray, radius_px, fps: float, methods=(), quality_min: float = 0.5,
+                    n_crops: int = 12, title: str = "") -> None:
+    """What the tracker saw: per object a strip of crops along its track with the measured
+    centre marked, and the measurement quality over time; write a PNG.
+
+    Args:
+        path: output PNG path (written atomically).
+        frames: (N, H, W, 3) uint8 BGR frames.
+        pixels: (N, n, 2) tracked centres (u, v) in px.
+        quality: (N, n) measurement quality in [0, 1].
+        measured: (N, n) bool, frames used in the fit.
+        radius_px: (n,) half width of each object's crop in px (about its diagonal).
+        fps: frame rate (frames per second), for the time axis.
+        methods: per object the tracking method's name (for the labels).
+        quality_min: the threshold below which measurements are dropped (drawn as a line).
+        n_crops: crops per object, evenly over the frames in which it was measured (frames
+            dropped in between are shown with a grey mark).
+        title: figure title.
+    """
+    N, n = quality.shape
+    fig, axes = plt.subplots(2 * n, 1, figsize=(11, 2.6 * n), squeeze=False,
+                             gridspec_kw={"height_ratios": [1.2, 1] * n})
+    times = np.arange(N) / fps
+    for i in range(n):
+        ax_strip, ax_q = axes[2 * i, 0], axes[2 * i + 1, 0]
+        seen = np.flatnonzero(np.all(np.isfinite(pixels[:, i]), axis=1) & (quality[:, i] > 0))
+        if len(seen):
+            ks = seen[np.unique(np.linspace(0, len(seen) - 1, min(n_crops, len(seen))).round().astype(int))]
+            ax_strip.imshow(_crop_strip(frames, pixels[:, i], ks, measured[:, i], float(radius_px[i])))
+            ax_strip.set_xticks((np.arange(len(ks)) + 0.5) * 64)
+            ax_strip.set_xticklabels([f"{k}" for k in ks], fontsize=7)
+        ax_strip.set_yticks([])
+        name = f"object {i + 1}" + (f" ({methods[i]})" if i < len(methods) else "")
+        ax_strip.set_title(f"{name}: crops along the track (frame numbers), + measured centre "
+                           "(yellow: used, grey: dropped)", fontsize=8, loc="left")
+        ax_q.plot(times, quality[:, i], "-", color="tab:blue", lw=1)
+        ax_q.plot(times[measured[:, i]], quality[measured[:, i], i], "o", ms=2, color="tab:blue")
+        dropped = ~measured[:, i] & (quality[:, i] > 0)
+        ax_q.plot(times[dropped], quality[dropped, i], "x", ms=4, color="tab:red", label="dropped")
+        ax_q.axhline(quality_min, color="0.5", lw=0.8, ls="--")
+        ax_q.set_ylim(-0.05, 1.05)
+        ax_q.set_ylabel("quality", fontsize=8)
+        ax_q.set_xlabel("video time (s)", fontsize=8)
+        ax_q.tick_params(labelsize=7)
+    _save(fig, path, title)
+
+
+def _crop_strip(frames: np.ndarray, track: np.ndarray, ks: np.ndarray, used: np.ndarray, radius: float,
+                size: int = 64) -> np.ndarray:
+    """(size, size * len(ks), 3) RGB strip of square crops of ``2 radius`` px around the track
+    in frames ``ks``, scaled to ``size`` px, each with a cross at the tracked centre."""
+    import cv2
+
+    r = max(int(np.ceil(radius)), 4)
+    tiles = []
+    for k in ks:
+        u, v = track[k]
+        M = np.array([[size / (2 * r), 0.0, size / 2 - u * size / (2 * r)],
+                      [0.0, size / (2 * r), size / 2 - v * size / (2 * r)]])
+        tile = cv2.warpAffine(frames[k], M, (size, size), flags=cv2.INTER_NEAREST, borderValue=(0, 0, 0))
+        colour = (0, 255, 255) if used[k] else (170, 170, 170)  # BGR: yellow where used
+        c = size // 2
+        for col, width in (((0, 0, 0), 3), (colour, 1)):  # outlined, to show on any colour
+            cv2.line(tile, (c - 8, c), (c + 8, c), col, width)
+            cv2.line(tile, (c, c - 8), (c, c + 8), col, width)
+        tiles.append(tile[..., ::-1])
+    return np.concatenate(tiles, axis=1)

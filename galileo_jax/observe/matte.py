@@ -1,0 +1,1099 @@
+"""Tracking objects by their colour against the static background (objects without texture).
+
+KLT (:mod:`.track`) needs texture inside an object; a plain-coloured block, a foam cube or a
+tape roll has none, and its outline's corners slide along the background. This module measures
+such an object in every frame from its *colour matte* instead:
+
+* **Background** (:func:`colour_background`): the per-pixel median of frames spread over the
+  video, leaving out, pixel by pixel, the frames in which an object covers it (its footprint
+  along a first, rough track); pixels no frame shows free (an object that never moves) are
+  filled from their surroundings (``cv2.inpaint``).
+* **Matte** (:func:`matte`): a pixel I in front of the background B is explained by the object
+  if it lies on the segment from B to one of the object's colours F_k, I = B + alpha (F_k - B):
+  alpha in [0, 1] is the fraction of the pixel the object covers (anti-aliased edges, motion
+  blur), the linear "difference matting" of a single-colour object over a known background
+  (Smith & Blinn, "Blue screen matting", SIGGRAPH 1996, eq. 3, with a per-pixel background).
+  A pixel far from every segment and from the background (a hand, a shadow, another object)
+  is *unusable*, as is one where the object's colour is too close to the background's there.
+* **Centre** (:func:`measure`): with every pixel of the object's footprint usable, the
+  alpha-weighted centroid (``cv2.moments``) of the matte around the object, re-centred twice;
+  a blurred object's centroid is its mean position over the exposure. Where part of the
+  footprint is unusable (occluded), the centroid would be pulled away from the hidden part,
+  so the object's clean matte (its *template*, from an unoccluded frame) is aligned by
+  Gauss-Newton (Lucas & Kanade 1981) to the usable pixels only. A frame in which too little
+  of the object is seen gets a low quality and is dropped by the caller, not guessed.
+
+Each measurement carries a quality in [0, 1]: the fraction of the object's matte that was
+seen and agreed with its template (:class:`Measurement`).
+
+All pixel coordinates are (u, v): u to the right, v down, in px of the full-size frame.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from galileo_jax.errors import TrackingError
+from galileo_jax.observe.tracks import Window, polygon_mask, window_corners
+
+#: Unusable pixels (occluded or without contrast) in the footprint above which the centre comes
+#: from aligning the template instead of the centroid.
+OCCLUSION_MAX = 0.03
+#: A frame whose matte around the object holds no unusable pixel and this close to the
+#: object's clean area (relative) is measured by the plain centroid, without the template.
+CLEAN_SEEN = 0.03
+#: Colour distance to the background (in noise SDs of one channel) below which a pixel is
+#: background: its alpha is set to 0 (noise alone would otherwise add a small positive alpha
+#: everywhere after clipping).
+BACKGROUND_SDS = 3.0
+#: Residual (in noise SDs of one channel, 3 channels) beyond which a pixel is not explained
+#: by the object's colours over the background.
+RESIDUAL_SDS = 5.0
+#: Smallest residual threshold in grey levels (video compression adds error at edges).
+RESIDUAL_MIN = 14.0
+#: Object colours closer than this (grey levels) to the background give no usable alpha.
+CONTRAST_MIN = 20.0
+#: Share of the current look mixed into the rough pass's template after each clean match.
+EVOLVE = 0.3
+#: A rough-pass match with an RMS difference above this many times the recent ones (plus 10
+#: grey levels) is a miss; three misses running lose the track.
+LOST_RMS = 3.0
+#: ... the recent RMS taken as at least this (grey levels): a resting object matches its own
+#: look almost exactly, and its first moving frames (blur, an impact) must not count as misses.
+LOST_FLOOR = 12.0
+#: Turn (rad) of the template tried either way when the rough pass searches wider.
+WIDE_TURN = math.radians(15.0)
+#: Smallest background threshold in grey levels (compressed video hides small noise in static
+#: areas, and its blocks differ by a few levels).
+BACKGROUND_MIN = 8.0
+_CROSS = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+
+
+class ColourBackground(NamedTuple):
+    """The static scene without the objects.
+
+    Attributes:
+        image: (H, W, 3) float32 BGR background.
+        noise_sd: pixel noise SD of one channel (grey levels), from frames minus background.
+    """
+
+    image: np.ndarray
+    noise_sd: float
+
+
+class Palette(NamedTuple):
+    """An object's colours.
+
+    Attributes:
+        colours: (K, 3) float32 BGR colours of its surfaces (K <= 4; k-means centres).
+        tolerance: colour distance (grey levels) within which a pixel counts as explained by
+            them: the residual threshold for the noise, or twice the 90th percentile of the
+            object's own pixels' distance to their nearest colour (shading, texture) if larger.
+    """
+
+    colours: np.ndarray
+    tolerance: float
+
+
+class Look(NamedTuple):
+    """An object's appearance.
+
+    Attributes:
+        palette: its :class:`Palette`.
+        template: (h, w) float32 matte of the object in a clean frame, turned upright
+            (rotated by -``angle`` of that frame), its centroid at ``centre``.
+        centre: (2,) centroid (px) of ``template`` in its own coordinates.
+        area: sum of ``template`` (px^2): the object's image area.
+    """
+
+    palette: Palette
+    template: np.ndarray
+    centre: np.ndarray
+    area: float
+
+
+class Measurement(NamedTuple):
+    """One object in one frame.
+
+    Attributes:
+        centre: (2,) centre (u, v) in px (NaN when not found).
+        quality: in [0, 1]; 0 when not found.
+        seen: matte area seen over the object's area (about 1 for a clean frame).
+        unusable: fraction of the footprint that was occluded or without contrast.
+        aligned: True if the centre came from aligning the template (occlusion), False if
+            from the centroid.
+    """
+
+    centre: np.ndarray
+    quality: float
+    seen: float
+    unusable: float
+    aligned: bool
+
+
+NOT_FOUND = Measurement(np.full(2, np.nan), 0.0, 0.0, 1.0, False)
+
+
+# ------------------------------------------------------------------------------ background
+
+
+def _sample(n_frames: int, n: int) -> np.ndarray:
+    return np.unique(np.linspace(0, n_frames - 1, min(n, n_frames)).round().astype(int))
+
+
+def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None) -> ColourBackground:
+    """The static background of a video, in colour.
+
+    Args:
+        frames: (N, H, W, 3) uint8 BGR frames.
+        covered: optional function ``covered(k) -> (H, W) bool``: pixels an object covers in
+            frame k (left out of that frame's vote); None: every frame votes everywhere (a
+            moving object then drops out of the median wherever it spends less than half of
+            the sampled frames).
+        n: frames sampled, evenly over the video.
+        region: optional ``(lo, hi)`` corners (u, v) in px of the rectangle to compute (the
+            objects' paths); outside it the background is left 0.
+
+    Returns:
+        :class:`ColourBackground`; pixels covered in every sampled frame are taken from the
+        other frames that show them free, else inpainted from their surroundings.
+    """
+    H, W = frames.shape[1:3]
+    (x0, y0), (x1, y1) = region if region is not None else ((0, 0), (W, H))
+    x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), W), min(int(y1), H)
+    part = frames[:, y0:y1, x0:x1]
+    cut = (lambda k: covered(k)[y0:y1, x0:x1]) if covered is not None else None
+    idx = _sample(len(frames), n)
+    inner = np.empty(part.shape[1:], np.float32)
+    for r in range(0, inner.shape[0], 64):  # in bands of rows, to bound the float copy
+        inner[r:r + 64] = np.median(part[idx, r:r + 64], axis=0)
+    if cut is not None:
+        masks = np.stack([cut(k) for k in idx])  # (n, h, w)
+        hit = masks.any(axis=0)
+        if hit.any():
+            ys, xs = np.nonzero(hit)
+            vals = part[idx][:, ys, xs].astype(np.float32)  # (n, m, 3)
+            vals[masks[:, ys, xs]] = np.nan
+            free = ~np.isnan(vals[..., 0]).all(axis=0)
+            with np.errstate(all="ignore"):
+                inner[ys[free], xs[free]] = np.nanmedian(vals[:, free], axis=0)
+            never = np.zeros(hit.shape, bool)
+            never[ys[~free], xs[~free]] = True
+            if never.any():
+                never = _fill_from_all_frames(part, cut, never, inner)
+            if never.any():
+                img = np.clip(inner, 0, 255).astype(np.uint8)
+                inner = cv2.inpaint(img, cv2.dilate(never.astype(np.uint8), np.ones((3, 3), np.uint8)), 5,
+                                    cv2.INPAINT_TELEA).astype(np.float32)
+    out = np.zeros((H, W, 3), np.float32)
+    out[y0:y1, x0:x1] = inner
+    return ColourBackground(out, _noise_sd(part, inner, cut, idx))
+
+
+def _fill_from_all_frames(frames, covered, never: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Fill ``never`` pixels (covered in every sampled frame) from any frame that shows them
+    free (median); returns the pixels still never seen."""
+    ys, xs = np.nonzero(never)
+    acc = np.full((len(frames), len(ys), 3), np.nan, np.float32)
+    for k in range(len(frames)):
+        free = ~covered(k)[ys, xs]
+        acc[k, free] = frames[k, ys[free], xs[free]]
+    seen = ~np.isnan(acc[..., 0]).all(axis=0)
+    if seen.any():
+        with np.errstate(all="ignore"):
+            out[ys[seen], xs[seen]] = np.nanmedian(acc[:, seen], axis=0)
+    left = np.zeros_like(never)
+    left[ys[~seen], xs[~seen]] = True
+    return left
+
+
+def _noise_sd(frames, background: np.ndarray, covered, idx) -> float:
+    """Pixel noise SD of one channel (grey levels): robust scale of frame - background over
+    the pixels no object covers, in a few frames."""
+    vals = []
+    for k in idx[:: max(1, len(idx) // 4)]:
+        d = frames[k].astype(np.float32) - background
+        if covered is not None:
+            d = d[~covered(k)]
+        vals.append(d.reshape(-1, 3)[::7])
+    d = np.concatenate(vals)
+    return float(max(1.4826 * np.median(np.abs(d - np.median(d, axis=0))), 0.5))
+
+
+# ------------------------------------------------------------------------------ matte
+
+
+def thresholds(noise_sd: float) -> tuple[float, float]:
+    """(background, residual) colour-distance thresholds in grey levels for a noise SD."""
+    return (max(BACKGROUND_SDS * math.sqrt(3.0) * noise_sd, BACKGROUND_MIN),
+            max(RESIDUAL_SDS * math.sqrt(3.0) * noise_sd, RESIDUAL_MIN))
+
+
+def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd: float
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """The object's matte over a known background.
+
+    Args:
+        image: (h, w, 3) float32 BGR pixels.
+        background: (h, w, 3) float32 background at the same pixels.
+        palette: the object's colours and their tolerance.
+        noise_sd: pixel noise SD of one channel (grey levels).
+
+    Returns:
+        ``(alpha, unusable)``: (h, w) float32 alpha in [0, 1] (0 on background and unusable
+        pixels) and (h, w) bool, pixels that are neither background nor explained by the
+        object's colours (an occluder), or where every colour of the object is too close to
+        the background's to tell (module docstring).
+    """
+    d = image - background
+    dd = np.einsum("hwc,hwc->hw", d, d)
+    bg_thr, _ = thresholds(noise_sd)
+    res_thr = palette.tolerance
+    best_r2 = np.full(dd.shape, np.inf, np.float32)
+    alpha = np.zeros(dd.shape, np.float32)
+    contrast2 = np.zeros(dd.shape, np.float32)
+    for F in np.asarray(palette.colours, np.float32):
+        e = F[None, None, :] - background
+        ee = np.einsum("hwc,hwc->hw", e, e)
+        de = np.einsum("hwc,hwc->hw", d, e)
+        a = np.clip(de / np.maximum(ee, 1e-6), 0.0, 1.0)
+        r2 = dd - 2 * a * de + a * a * ee  # |d - a e|^2
+        take = r2 < best_r2
+        best_r2 = np.where(take, r2, best_r2)
+        alpha = np.where(take, a, alpha)
+        contrast2 = np.maximum(contrast2, ee)
+    best_r = np.sqrt(np.maximum(best_r2, 0.0))
+    contrast = np.sqrt(contrast2)
+    is_bg = dd < bg_thr * bg_thr
+    # Unexplained pixels in thin lines (1-2 px) are the object's own edges, where video
+    # compression blurs the colour (4:2:0 chroma) but not the brightness; an occluder is larger.
+    odd = (~is_bg & (best_r > res_thr)).astype(np.uint8)
+    odd = cv2.morphologyEx(odd, cv2.MORPH_OPEN, _CROSS) > 0
+    unusable = odd | (contrast < max(CONTRAST_MIN, 2 * bg_thr))
+    alpha = np.where(is_bg | unusable, 0.0, alpha).astype(np.float32)
+    return alpha, unusable
+
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def footprint(shape, centre, half, angle: float, grow: float = 0.0, offset=(0, 0)) -> np.ndarray:
+    """(h, w) bool: the rectangle of half sizes ``half`` (along, across; px) grown by ``grow``
+    px, turned by ``angle`` rad, centred at ``centre`` (px, full-frame), in an array of
+    ``shape`` whose pixel (0, 0) is full-frame pixel ``offset``."""
+    window = Window((half[0] + grow, half[1] + grow), angle)
+    return polygon_mask(shape, window_corners(centre, window), offset) > 0
+
+
+def _box(shape, centre, radius: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Integer corners (lo, hi) of the square of ``radius`` px around ``centre``, clamped to
+    the image; None if it is empty or the centre is not finite."""
+    if not np.all(np.isfinite(centre)):
+        return None
+    h, w = shape[:2]
+    lo = np.maximum(np.floor(np.asarray(centre) - radius).astype(int), 0)
+    hi = np.minimum(np.ceil(np.asarray(centre) + radius).astype(int) + 1, [w, h])
+    if np.any(hi - lo < 3):
+        return None
+    return lo, hi
+
+
+def _centroid(weights: np.ndarray) -> np.ndarray | None:
+    m = cv2.moments(weights.astype(np.float32), binaryImage=False)
+    if m["m00"] <= 1e-6:
+        return None
+    return np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+
+
+# ------------------------------------------------------------------------------ alignment
+
+
+def _place(template: np.ndarray, t_centre, angle: float, at, shape) -> np.ndarray:
+    """The upright ``template`` turned by ``angle`` rad about its centroid ``t_centre`` and
+    placed with that centroid at ``at`` (px) in an array of ``shape`` (h, w)."""
+    c, s = math.cos(angle), math.sin(angle)
+    R = np.array([[c, -s], [s, c]])
+    M = np.hstack([R, (np.asarray(at, float) - R @ np.asarray(t_centre, float))[:, None]])
+    return cv2.warpAffine(template, M, (shape[1], shape[0]), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def align(alpha: np.ndarray, usable: np.ndarray, look: Look, angle: float, start, iters: int = 12
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Translate the object's template over a matte, using only the usable pixels.
+
+    Gauss-Newton on sum_x usable(x) (alpha(x) - T(x - c))^2 over the centre c (Lucas &
+    Kanade 1981, translation only; the template is turned to ``angle``).
+
+    Args:
+        alpha: (h, w) matte (crop coordinates).
+        usable: (h, w) bool, pixels that may be compared.
+        look: the object's :class:`Look`.
+        angle: the object's tilt in the image (rad).
+        start: (2,) first guess of the centre (crop px).
+        iters: Gauss-Newton steps at most.
+
+    Returns:
+        ``(centre, placed)``: the centre (2,) in crop px and the template placed there
+        (alpha's shape).
+    """
+    c = np.asarray(start, float).copy()
+    w = usable.astype(np.float32)
+    T = None
+    for _ in range(iters):
+        T = _place(look.template, look.centre, angle, c, alpha.shape)
+        gy, gx = np.gradient(T)
+        r = (alpha - T) * w
+        A = np.array([[np.sum(w * gx * gx), np.sum(w * gx * gy)], [np.sum(w * gx * gy), np.sum(w * gy * gy)]])
+        b = -np.array([np.sum(r * gx), np.sum(r * gy)])
+        if np.linalg.cond(A) > 1e6:
+            break
+        step = np.linalg.solve(A, b)
+        step = np.clip(step, -3.0, 3.0)
+        c += step
+        if np.abs(step).max() < 0.005:
+            break
+    return c, _place(look.template, look.centre, angle, c, alpha.shape)
+
+
+# ------------------------------------------------------------------------------ measurement
+
+
+def _streak(radius: float, length: float, angle: float) -> np.ndarray:
+    """Structuring element: a disc of ``radius`` px swept along a segment of ``length`` px at
+    ``angle`` rad (how far a motion-blurred edge reaches), centred."""
+    r = max(int(round(radius)), 1)
+    half = 0.5 * length
+    ext = int(math.ceil(half)) + r
+    size = 2 * ext + 1
+    k = np.zeros((size, size), np.uint8)
+    d = np.array([math.cos(angle), math.sin(angle)]) * half
+    p0 = np.round((ext - d) * 4).astype(int)
+    p1 = np.round((ext + d) * 4).astype(int)
+    cv2.line(k, tuple(map(int, p0)), tuple(map(int, p1)), 1, thickness=2 * r + 1, lineType=cv2.LINE_8, shift=2)
+    cv2.circle(k, (ext, ext), r, 1, -1)
+    return k
+
+
+def measure(frame: np.ndarray, background: ColourBackground, look: Look, guess, half, angle: float,
+            margin: float = 3.0, blur: float = 0.0, keep_out=(), refine: int = 10) -> Measurement:
+    """Measure one object's centre in one frame (module docstring).
+
+    First the alpha-weighted centroid of the matte in the object's footprint (grown by
+    ``margin``), re-centred until it settles. Then the object's clean template is aligned to
+    the usable pixels (:func:`align`) and pixels that contradict it are marked *bad*: matte
+    well outside the template's outline (a hand's fingers, a shadow of the object's colour),
+    matte missing well inside it (an occluder explained as background), and unusable pixels
+    (occluders, no contrast); the alignment is repeated without them. The centre is the
+    centroid of the matte with the bad pixels replaced by the aligned template: in a clean
+    frame exactly the first centroid, and where part of the object is hidden, the centroid
+    the object would have if it were seen whole.
+
+    Args:
+        frame: (H, W, 3) uint8 BGR frame.
+        background: the video's :class:`ColourBackground`.
+        look: the object's :class:`Look` (colours, clean template).
+        guess: (2,) its approximate centre (px).
+        half: (2,) half sizes (along, across) of its footprint (px).
+        angle: its tilt in the image (rad, the footprint's along axis from the u axis).
+        margin: px added around the footprint for the measurement (motion blur, the guess's
+            error).
+        blur: the longest motion blur expected (px, the object's speed per frame): matte
+            within half of it along the footprint's axis (and 1.5 px across) of the
+            template's outline is never bad.
+        keep_out: (centre, half, angle) of each other object near it: its footprint counts
+            as occluding this one (the part of this object there is the template's).
+        refine: centroids at most, each in the region re-centred on the last (until it
+            moves by less than 0.01 px).
+
+    Returns:
+        :class:`Measurement` (:data:`NOT_FOUND` when the region holds no matte). Its quality
+        is the share of the template's mass seen on good pixels times 1 - |1 - seen| (seen:
+        the matte's mass on good pixels over the template's there).
+    """
+    reach = math.hypot(*half) + margin + 2 + 0.5 * blur
+    box = _box(frame.shape, guess, reach + 3)
+    if box is None:
+        return NOT_FOUND
+    lo, hi = box
+    img = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
+    alpha, unusable = matte(img, background.image[lo[1]:hi[1], lo[0]:hi[0]], look.palette, background.noise_sd)
+    hidden = np.zeros(alpha.shape, bool)  # under another object's footprint: not this one's
+    for other_centre, other_half, other_angle in keep_out:
+        hidden |= footprint(alpha.shape, other_centre, other_half, other_angle, offset=lo)
+    alpha[hidden] = 0.0
+    unusable |= hidden
+    centre = np.asarray(guess, float) - lo
+    region = None
+    for _ in range(refine):
+        region = footprint(alpha.shape, centre + lo, half, angle, grow=margin, offset=lo)
+        found = _centroid(np.where(region, alpha, 0.0))
+        if found is None:
+            return NOT_FOUND
+        shift = float(np.abs(found - centre).max())
+        centre = found
+        if shift < 0.01:
+            break
+    if region is None:
+        return NOT_FOUND
+    seen = float(np.where(region, alpha, 0.0).sum()) / look.area
+    if abs(1.0 - seen) <= CLEAN_SEEN and not (unusable & region).any():  # a clean frame: the centroid as it is
+        return Measurement(centre + lo, 1.0 - abs(1.0 - seen), seen, 0.0, False)
+    near_k = _streak(1.5, blur, angle)  # blur runs along the motion (about the footprint's axis)
+    bad = unusable.copy()
+    c = centre
+    for _ in range(3):
+        c, T = align(alpha, ~bad, look, angle, c)
+        support = (T > 0.5).astype(np.uint8)
+        near = cv2.dilate(support, near_k) > 0
+        core = cv2.erode(support, near_k) > 0
+        wrong = ((alpha > 0.35) & ~near) | ((alpha < T - 0.35) & core)
+        wrong = cv2.morphologyEx(wrong.astype(np.uint8), cv2.MORPH_OPEN, _CROSS) > 0
+        new_bad = unusable | wrong
+        if np.array_equal(new_bad, bad):
+            break
+        bad = new_bad
+    T = _place(look.template, look.centre, angle, c, alpha.shape)
+    near = cv2.dilate((T > 0.01).astype(np.uint8), near_k) > 0
+    filled = np.where(near, np.where(bad, T, alpha), 0.0)
+    found = _centroid(filled)
+    if found is None:
+        return NOT_FOUND
+    mass = float(T.sum())
+    good_mass = float(T[~bad].sum())
+    observed = good_mass / mass if mass > 0 else 0.0
+    seen = float(alpha[near & ~bad].sum()) / max(good_mass, 1e-6)
+    bad_share = float(T[bad].sum()) / mass if mass > 0 else 1.0
+    quality = float(np.clip(observed * (1.0 - abs(1.0 - seen)), 0.0, 1.0))
+    return Measurement(found + lo, quality, seen, bad_share, bad_share > OCCLUSION_MAX)
+
+
+# ------------------------------------------------------------------------------ appearance
+
+
+def _colours(pixels: np.ndarray, k_max: int = 4, min_share: float = 0.08) -> np.ndarray:
+    """(K, 3) cluster centres (k-means) of (m, 3) pixel colours, leaving out clusters holding
+    fewer than ``min_share`` of the pixels."""
+    pixels = np.asarray(pixels, np.float32).reshape(-1, 3)
+    k = int(min(k_max, max(1, len(pixels) // 20)))
+    if k == 1:
+        return np.median(pixels, axis=0, keepdims=True)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 30, 0.5)
+    cv2.setRNGSeed(0)
+    _, labels, centres = cv2.kmeans(pixels, k, None, crit, 3, cv2.KMEANS_PP_CENTERS)
+    share = np.bincount(labels.ravel(), minlength=k) / len(labels)
+    return centres[share >= min_share].astype(np.float32)
+
+
+def object_colours(frames, background: ColourBackground, centres, half, angles, min_share: float = 0.08
+                   ) -> Palette:
+    """The :class:`Palette` of an object, from the pixels well inside its footprint that
+    differ from the background, pooled over frames (``frames`` (m, H, W, 3) with the object
+    at ``centres`` (m, 2), tilted by ``angles`` (m,)); colours of fewer than ``min_share`` of
+    those pixels are left out.
+
+    Raises:
+        ValueError: fewer than 3 such pixels."""
+    bg_thr, res_thr = thresholds(background.noise_sd)
+    pool = []
+    for frame, c, a in zip(frames, centres, angles):
+        box = _box(frame.shape, c, math.hypot(*half) + 2)
+        if box is None:
+            continue
+        lo, hi = box
+        img = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
+        inner = footprint(img.shape, c, np.asarray(half) * 0.7, a, offset=lo)
+        diff = np.linalg.norm(img - background.image[lo[1]:hi[1], lo[0]:hi[0]], axis=-1)
+        pool.append(img[inner & (diff > bg_thr)])
+    pool = np.concatenate(pool) if pool else np.zeros((0, 3), np.float32)
+    if len(pool) < 3:
+        raise ValueError("the object does not differ from the background")
+    colours = _colours(pool, min_share=min_share)
+    spread = np.min(np.linalg.norm(pool[:, None, :] - colours[None], axis=-1), axis=1)
+    return Palette(colours, float(max(res_thr, 2.0 * np.quantile(spread, 0.9))))
+
+
+def learn_template(frame, background: ColourBackground, palette: Palette, centre, half, angle: float,
+                   margin: float = 2.0) -> Look:
+    """The :class:`Look` of an object from one clean frame: its matte around ``centre``,
+    turned upright (by -``angle``), and its centroid and area."""
+    reach = math.hypot(*half) + margin + 3
+    box = _box(frame.shape, centre, reach)
+    lo, hi = box
+    img = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
+    alpha, _ = matte(img, background.image[lo[1]:hi[1], lo[0]:hi[0]], palette, background.noise_sd)
+    c = np.asarray(centre, float) - lo
+    for _ in range(10):  # re-centred on the matte, in case ``centre`` is a rough one
+        cut = np.where(footprint(alpha.shape, c + lo, half, angle, grow=margin, offset=lo), alpha, 0.0)
+        c = _centroid(cut)
+        if c is None:
+            raise ValueError("no matte at the object's position")
+    alpha = cut
+    size = int(2 * math.ceil(reach) + 1)
+    upright = _place(alpha.astype(np.float32), c, -angle, ((size - 1) / 2, (size - 1) / 2), (size, size))
+    tc = _centroid(upright)
+    return Look(palette, upright.astype(np.float32), tc, float(upright.sum()))
+
+
+# ------------------------------------------------------------------------------ tracking
+
+
+class MatteTracks(NamedTuple):
+    """Objects followed by their matte (:func:`track_matte`).
+
+    Attributes:
+        pixels: (N, n, 2) centre (u, v) in px; where not measured, the rough track's.
+        valid: (N, n) bool, measured with quality >= the threshold.
+        quality: (N, n) measurement quality in [0, 1] (0: not found or outside the image).
+        aligned: (N, n) bool, centre from the template alignment (occlusion).
+        lost: (n,) frame at which each object's track was lost inside the image (the rough
+            pass could not follow it, or it was never measured again while in view), -1 if
+            never.
+        rough: (N, n, 2) the first pass's track (px; NaN where not followed).
+        look_frame: (n,) frame from which each object's colours and template were taken (-1:
+            its start frame, no clean frame found).
+    """
+
+    pixels: np.ndarray
+    valid: np.ndarray
+    quality: np.ndarray
+    aligned: np.ndarray
+    lost: np.ndarray
+    rough: np.ndarray
+    look_frame: np.ndarray
+
+
+def _visible_fraction(shape, centre, half, angle) -> float:
+    """Fraction of the footprint's area inside the image."""
+    if not np.all(np.isfinite(centre)):
+        return 0.0
+    r = math.hypot(*half) + 2
+    lo = np.floor(np.asarray(centre) - r).astype(int)
+    size = int(2 * math.ceil(r) + 2)
+    fp = footprint((size, size), centre, half, angle, offset=lo)
+    total = fp.sum()
+    if total == 0:
+        return 0.0
+    h, w = shape[:2]
+    ys, xs = np.nonzero(fp)
+    ys, xs = ys + lo[1], xs + lo[0]
+    return float(((xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)).sum() / total)
+
+
+def _angles(px: np.ndarray, ok: np.ndarray, angle0: float, min_step: float = 1.5) -> np.ndarray:
+    """(N,) tilt of an object frame by frame: the direction of its motion where it moves more
+    than ``min_step`` px per frame (central difference), else the previous frame's; the
+    direction is folded into (-90, 90] degrees of ``angle0`` (a box sliding back keeps its
+    tilt)."""
+    out = np.full(len(px), angle0)
+    a = angle0
+    for k in range(len(px)):
+        j0, j1 = max(k - 1, 0), min(k + 1, len(px) - 1)
+        if ok[j0] and ok[j1] and j1 > j0:
+            v = (px[j1] - px[j0]) / (j1 - j0)
+            if np.linalg.norm(v) > min_step:
+                b = math.atan2(v[1], v[0])
+                b = (b - angle0 + math.pi / 2) % math.pi - math.pi / 2 + angle0
+                a = b
+        out[k] = a
+    return out
+
+
+class _Template(NamedTuple):
+    """An object's look for the rough pass: BGR crop, mask of its footprint (grown by 1 px, so
+    that its outline against the background localises it), the object's centre in the crop
+    and its tilt there."""
+
+    image: np.ndarray
+    mask: np.ndarray
+    centre: np.ndarray
+    angle: float
+
+
+def _template(frame: np.ndarray, centre, half, angle: float) -> _Template | None:
+    box = _box(frame.shape, centre, math.hypot(*half) + 3)
+    if box is None:
+        return None
+    lo, hi = box
+    mask = footprint((hi[1] - lo[1], hi[0] - lo[0]), centre, half, angle, grow=1.0, offset=lo)
+    return _Template(frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32), mask.astype(np.uint8),
+                     np.asarray(centre, float) - lo, float(angle))
+
+
+def _turned(tpl: _Template, angle: float) -> _Template:
+    """The template turned about the object's centre to tilt ``angle``."""
+    d = angle - tpl.angle
+    if abs(d) < 1e-3:
+        return tpl
+    c, s = math.cos(d), math.sin(d)
+    R = np.array([[c, -s], [s, c]])
+    h, w = tpl.mask.shape
+    M = np.hstack([R, (tpl.centre - R @ tpl.centre)[:, None]])
+    img = cv2.warpAffine(tpl.image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    mask = cv2.warpAffine(tpl.mask, M, (w, h), flags=cv2.INTER_NEAREST)
+    return _Template(img, mask, tpl.centre, angle)
+
+
+def _evolve(tpl: _Template, frame: np.ndarray, centre, rate: float) -> _Template:
+    """The template moved towards the object's look in ``frame`` at ``centre`` (px, sub-pixel)
+    by ``rate`` (exponential forgetting, as the Open Source Physics Tracker's evolving
+    template)."""
+    h, w = tpl.mask.shape
+    shift = np.asarray(centre, float) - tpl.centre
+    M = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]])
+    now = cv2.warpAffine(frame, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+    return tpl._replace(image=(1.0 - rate) * tpl.image + rate * now)
+
+
+def _parabola(a: float, b: float, c: float) -> float:
+    """Offset of the extremum of a parabola through (-1, a), (0, b), (1, c), in [-0.5, 0.5]."""
+    den = a - 2 * b + c
+    if not (np.isfinite(den) and den > 1e-12):  # a neighbour left out (another object there)
+        return 0.0
+    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+
+
+def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: int = 5
+           ) -> list[tuple[np.ndarray, float]]:
+    """Where the template fits best (least squared difference over its mask) within
+    ``radius`` px of ``predicted``: up to ``n_best`` local minima, best first, each the
+    object's centre (2,) px, to a fraction of a pixel (a parabola through the minimum), and
+    the RMS difference per channel there (grey levels); none if the search region leaves
+    the image."""
+    h, w = tpl.mask.shape
+    r = int(math.ceil(radius))
+    lo = np.round(np.asarray(predicted, float) - tpl.centre).astype(int) - r
+    hi = lo + [w + 2 * r, h + 2 * r]
+    H, W = frame.shape[:2]
+    lo, hi = np.maximum(lo, 0), np.minimum(hi, [W, H])
+    if hi[0] - lo[0] < w + 2 or hi[1] - lo[1] < h + 2:
+        return []
+    region = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
+    mask = np.repeat(tpl.mask[..., None], 3, axis=2)
+    ssd = cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=mask)
+    minima = (ssd <= cv2.erode(ssd, np.ones((5, 5), np.uint8))).nonzero()
+    order = np.argsort(ssd[minima])[:n_best]
+    out = []
+    for y, x in zip(minima[0][order], minima[1][order]):
+        dx = _parabola(ssd[y, x - 1], ssd[y, x], ssd[y, x + 1]) if 0 < x < ssd.shape[1] - 1 else 0.0
+        dy = _parabola(ssd[y - 1, x], ssd[y, x], ssd[y + 1, x]) if 0 < y < ssd.shape[0] - 1 else 0.0
+        rms = math.sqrt(max(float(ssd[y, x]), 0.0) / max(3 * int(tpl.mask.sum()), 1))
+        out.append((np.array([lo[0] + x + dx, lo[1] + y + dy]) + tpl.centre, rms))
+    return out
+
+
+def _recentre(frames: np.ndarray, idx: np.ndarray, k: int, centre, half, angle: float, margin: float
+              ) -> np.ndarray | None:
+    """The centroid of what differs from the median of the frames ``idx`` (a moving object
+    is not in that median where it passes) inside the object's footprint at ``centre`` grown
+    by ``margin`` px in frame ``k``, if that region is about the object's size (0.6 to 1.6
+    times its footprint; else None: the object rests where the median holds it, or a hand
+    covers it). Keeps the rough pass's template from drifting off the object."""
+    box = _box(frames.shape[1:], centre, math.hypot(*half) + margin + 2)
+    if box is None:
+        return None
+    lo, hi = box
+    crop = frames[k, lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16)
+    still = np.median(frames[idx, lo[1]:hi[1], lo[0]:hi[0]], axis=0).astype(np.int16)
+    d = np.abs(crop - still).max(axis=-1)
+    thr = max(BACKGROUND_MIN + 4, 4.0 * 1.4826 * float(np.median(d)))
+    fg = ((d > thr) & footprint(d.shape, centre, half, angle, grow=margin, offset=lo)).astype(np.uint8)
+    fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, _CROSS)
+    area = float(fg.sum())
+    if not 0.6 * 4 * half[0] * half[1] <= area <= 1.6 * 4 * (half[0] + 0.5 * margin) * (half[1] + 0.5 * margin):
+        return None
+    c = _centroid(fg.astype(np.float32))
+    return None if c is None else c + lo
+
+
+def _unchanged(a: np.ndarray, b: np.ndarray, centre, half, angle: float, thr: float) -> bool:
+    """True if an object's footprint at ``centre`` (grown by 2 px) looks the same in frames
+    ``a`` and ``b``: fewer than 2% of its pixels changed by more than ``thr`` grey levels."""
+    box = _box(a.shape, centre, math.hypot(*half) + 4)
+    if box is None:
+        return False
+    lo, hi = box
+    d = np.abs(a[lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16) - b[lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16)).max(-1)
+    fp = footprint(d.shape, centre, half, angle, grow=2.0, offset=lo)
+    return bool((d[fp] > thr).mean() < 0.02) if fp.any() else False
+
+
+def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_frame: int, on_loss: str):
+    """Follow the objects frame by frame from ``k0`` in direction ``step`` (+1 or -1).
+
+    An object whose footprint did not change since the previous frame rests there. Otherwise
+    its look (:class:`_Template`, from frame ``k0``, turned to its direction of motion and
+    evolving with it: :data:`EVOLVE`) is matched (:func:`_match`, least squares over the
+    footprint: a plain object is localised by its outline, on any background) around its
+    predicted position (constant velocity), within 4 px plus a frame's motion; where the
+    best match is much worse than the recent ones (an impact that starts or stops it, a turn
+    onto the floor), three times wider and turned by +-:data:`WIDE_TURN`. An object whose
+    footprint would leave the image is followed no further.
+
+    Returns:
+        (N, n, 2) pixels (NaN where not followed), (N, n) RMS difference of each match (grey
+        levels; NaN where not followed, the previous one where it rested), (N, n) bool,
+        matches confirmed by :func:`_recentre` (the object seen there, whole and alone, against
+        the scenery) and (n,) the frame at which each object was lost inside the image (-1
+        if never).
+
+    Raises:
+        TrackingError: with ``on_loss="raise"``, an object not matched in 3 frames running.
+    """
+    N, n = len(frames), len(start)
+    px = np.full((N, n, 2), np.nan)
+    px[k0] = start
+    rms = np.full((N, n), np.nan)
+    rms[k0] = 0.0
+    verified = np.zeros((N, n), bool)
+    lost = np.full(n, -1)
+    vel = np.zeros((n, 2))
+    alive = np.ones(n, bool)
+    angle = np.array(angles0, float)
+    misses = np.zeros(n, int)
+    templates = [_template(frames[k0], start[i], halves[i], angle[i]) for i in range(n)]
+    turned = list(templates)
+    recent_rms = [[] for _ in range(n)]
+    idx = _sample(N, 15)
+    ks = range(k0 + step, N) if step > 0 else range(k0 - 1, -1, -1)
+    prev = k0
+    for k in ks:
+        # 1. each object's candidate positions (resting objects stay put)
+        options: dict[int, list] = {}
+        for i in range(n):
+            if not alive[i] or templates[i] is None:
+                continue
+            if np.linalg.norm(vel[i]) < 2.0 and \
+                    _unchanged(frames[k], frames[prev], px[prev, i], halves[i], angle[i], BACKGROUND_MIN):
+                px[k, i], rms[k, i], vel[i], misses[i] = px[prev, i], rms[prev, i], 0.0, 0
+                continue
+            pred = px[prev, i] + vel[i]
+            if _visible_fraction(frames.shape[1:], px[prev, i], halves[i], angle[i]) < 0.999 and \
+                    _visible_fraction(frames.shape[1:], pred, halves[i], angle[i]) < 1.0:
+                alive[i] = False  # leaving the image
+                continue
+            options[i] = _candidates(frames[k], turned[i], pred, float(np.linalg.norm(vel[i])), halves[i],
+                                     recent_rms[i][-10:])
+        # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
+        chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
+                         halves)
+        # 3. update (a match far worse than the recent ones is no match: the object is hidden)
+        for i, opts in options.items():
+            recent = recent_rms[i][-10:]
+            if i in chosen and len(recent) > 2 and \
+                    chosen[i][1] > LOST_RMS * max(float(np.median(recent)), LOST_FLOOR) + 10.0:
+                del chosen[i]
+
+            if i not in chosen:
+                misses[i] += 1
+                px[k, i] = px[prev, i] + vel[i]
+                if misses[i] >= 3:
+                    alive[i], lost[i] = False, k
+                    if on_loss == "raise":
+                        when = f" (t = {(k + first_frame) / fps:.2f} s)" if fps else ""
+                        raise TrackingError(f"object {i + 1} track lost at frame {k + first_frame}{when}: it was not "
+                                            "found near where it was heading; check the video, or give "
+                                            "camera.start_pixels", object_index=i)
+                continue
+            misses[i] = 0
+            centre, r, tpl, _ = chosen[i]
+            speed = float(np.linalg.norm(vel[i]))
+            near = any(np.linalg.norm(centre - (chosen[j][0] if j in chosen else px[k, j])) <
+                       math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4
+                       for j in range(n) if j != i and (j in chosen or np.all(np.isfinite(px[k, j]))))
+            if not near:
+                at = _recentre(frames, idx, k, centre, halves[i], tpl.angle, 2.0 + 0.5 * speed)
+                if at is not None and np.linalg.norm(at - centre) < 0.5 * min(halves[i]):
+                    centre, verified[k, i] = at, True
+            new_vel = centre - px[prev, i]
+            turned[i], angle[i] = tpl, tpl.angle
+            if np.linalg.norm(new_vel) > 1.5:
+                b = math.atan2(step * new_vel[1], step * new_vel[0])
+                a = (b - angles0[i] + math.pi / 2) % math.pi - math.pi / 2 + angles0[i]
+                if abs(a - turned[i].angle) > math.radians(2.0):
+                    turned[i] = _turned(turned[i], a)
+                angle[i] = a
+            vel[i] = new_vel
+            px[k, i], rms[k, i] = centre, r
+            typical = float(np.median(recent_rms[i][-10:])) if len(recent_rms[i]) > 2 else np.inf
+            recent_rms[i].append(r)
+            if not near and np.isfinite(typical) and r <= 1.1 * typical + 2.0:  # the look evolves (blur, turn, light)
+                turned[i] = _evolve(turned[i], frames[k], centre, EVOLVE)
+        prev = k
+    return px, rms, verified, lost
+
+
+def _candidates(frame, tpl: _Template, pred, speed: float, half, recent: list) -> list:
+    """Candidate positions of one object in a frame for :func:`_rough_pass`: (centre, RMS,
+    template, cost) tuples. Searched within 4 px plus a frame's motion of the prediction
+    (twice the object's size while its speed is not known yet); where the best is much worse
+    than the recent matches (a turn onto the floor, an impact), also with the template turned
+    by +-:data:`WIDE_TURN` and three times wider. A candidate pays for its distance from the
+    prediction: the recent RMS times (distance / reach)^2, so a look-alike in the scenery does
+    not win over the object where it is expected."""
+    local = 4.0 + speed if len(recent) > 2 else 4.0 + max(speed, 2 * max(half))
+    typical = float(np.median(recent)) if len(recent) > 2 else np.inf
+    out = [(c, r, tpl) for c, r in _match(frame, tpl, pred, local)]
+    if not out or out[0][1] > 1.5 * typical + 3.0:
+        for a, radius in ((-WIDE_TURN, local), (WIDE_TURN, local), (0.0, 3 * local + max(half))):
+            t = tpl if a == 0.0 else _turned(tpl, tpl.angle + a)
+            out += [(c, r, t) for c, r in _match(frame, t, pred, radius)]
+
+    def cost(c, r):
+        far = (float(np.linalg.norm(c - pred)) / local) ** 2
+        return r + (typical if np.isfinite(typical) else r) * far
+
+    return sorted(((c, r, t, cost(c, r)) for c, r, t in out), key=lambda o: o[3])[:8]
+
+
+def _choose(options: dict, fixed: dict, halves) -> dict:
+    """One candidate per object (:func:`_candidates`) minimising the summed cost, with no two
+    objects (also those ``fixed`` where they are) closer than 0.8 times the sum of their
+    smaller half sizes. Objects without candidates are left out."""
+    ids = [i for i in options if options[i]]
+    if not ids:
+        return {}
+
+    def apart(i, c, j, d):
+        return np.linalg.norm(c - d) >= 0.8 * (min(halves[i]) + min(halves[j]))
+
+    best, best_cost = None, np.inf
+    for combo in itertools.product(*(range(len(options[i])) for i in ids)):
+        picks = {i: options[i][m] for i, m in zip(ids, combo)}
+        total = sum(p[3] for p in picks.values())
+        if total >= best_cost:
+            continue
+        ok = all(apart(i, picks[i][0], j, picks[j][0]) for a, i in enumerate(ids) for j in ids[a + 1:])
+        ok = ok and all(apart(i, picks[i][0], j, c) for i in ids for j, c in fixed.items())
+        if ok:
+            best, best_cost = picks, total
+    if best is None:  # nothing compatible: each its own best
+        best = {i: options[i][0] for i in ids}
+    return best
+
+
+def _covered(px: np.ndarray, halves, angles: np.ndarray, shape, grow: np.ndarray):
+    """``covered(k)``: (H, W) bool, the objects' footprints along (N, n, 2) tracks ``px``,
+    grown by ``grow`` (N, n) px (NaN positions cover nothing)."""
+    def covered(k):
+        out = np.zeros(shape[:2], bool)
+        for i in range(px.shape[1]):
+            c = px[k, i]
+            if np.all(np.isfinite(c)):
+                r = math.hypot(*halves[i]) + grow[k, i] + 2
+                box = _box(shape, c, r)
+                if box is not None:
+                    lo, hi = box
+                    out[lo[1]:hi[1], lo[0]:hi[0]] |= footprint((hi[1] - lo[1], hi[0] - lo[0]), c, halves[i],
+                                                               angles[k, i], grow=grow[k, i], offset=lo)
+        return out
+    return covered
+
+
+def _speeds(px: np.ndarray) -> np.ndarray:
+    """(N, n) speed in px per frame (central differences; 0 where unknown)."""
+    v = np.zeros(px.shape[:2])
+    d = np.linalg.norm(px[2:] - px[:-2], axis=-1) / 2
+    v[1:-1] = np.nan_to_num(d)
+    v[0], v[-1] = v[1], v[-2]
+    return v
+
+
+def _clean_frames(px: np.ndarray, good: np.ndarray, i: int, halves, speed: np.ndarray, shape, start,
+                  n_max: int = 200) -> np.ndarray:
+    """Frames in which object ``i`` was measured well (``good`` (N, n) bool) and is seen whole
+    and alone: inside the image, clear of the other objects, and (once it has moved) clear of
+    its start position, where a hand may have held it; the slowest first (sharpest), at most
+    ``n_max``."""
+    N, n = px.shape[:2]
+    diag = 2 * math.hypot(*halves[i])
+    ok = np.all(np.isfinite(px[:, i]), axis=1) & good[:, i]
+    for k in np.flatnonzero(ok):
+        if _visible_fraction(shape, px[k, i], halves[i], 0.0) < 1.0:
+            ok[k] = False
+            continue
+        for j in range(n):
+            if j != i and np.all(np.isfinite(px[k, j])) and \
+                    np.linalg.norm(px[k, i] - px[k, j]) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4:
+                ok[k] = False
+    moved = ok & (np.linalg.norm(px[:, i] - start[i], axis=-1) > diag)
+    use = moved if moved.sum() >= 3 else ok
+    ks = np.flatnonzero(use)
+    if len(ks) > n_max:
+        ks = ks[np.argsort(speed[ks, i], kind="stable")[:n_max]]
+    return ks
+
+
+def _spread(points: np.ndarray, n: int) -> np.ndarray:
+    """Indices of up to ``n`` of the (m, 2) ``points`` spread out (farthest-point sampling
+    from the first)."""
+    if len(points) <= n:
+        return np.arange(len(points))
+    chosen = [0]
+    dist = np.linalg.norm(points - points[0], axis=1)
+    while len(chosen) < n:
+        j = int(np.argmax(dist))
+        chosen.append(j)
+        dist = np.minimum(dist, np.linalg.norm(points - points[j], axis=1))
+    return np.array(sorted(chosen))
+
+
+def _learn_looks(frames, bg: ColourBackground, px: np.ndarray, ks, half, angles: np.ndarray, n_looks: int = 8,
+                 n_palette: int = 12) -> list[tuple[np.ndarray, Look]]:
+    """An object's looks from its clean frames ``ks`` (slowest first; object at ``px`` (N, 2),
+    tilted by ``angles`` (N,)): one palette from the ``n_palette`` slowest, and a template
+    from each of up to ``n_looks`` of them spread along its path, with the position it was
+    taken at. Where the camera is perspective or the object turns, its silhouette changes
+    along its path; each frame is then measured with the nearest look (:func:`_nearest`).
+    Templates whose area is more than 30% from their median are left out.
+
+    Raises:
+        ValueError: no clean frame, or the object does not differ from the background.
+    """
+    if len(ks) == 0:
+        raise ValueError("no clean frame")
+    ks = np.asarray(ks)
+    palette = object_colours(frames[ks[:n_palette]], bg, px[ks[:n_palette]], half, angles[ks[:n_palette]])
+    looks = []
+    for k in ks[_spread(px[ks], n_looks)]:
+        try:
+            looks.append((px[k], learn_template(frames[k], bg, palette, px[k], half, angles[k])))
+        except ValueError:
+            continue
+    if not looks:
+        raise ValueError("no matte at the object's position")
+    areas = np.array([lk.area for _, lk in looks])
+    return [(p, lk) for p, lk in looks if abs(lk.area - np.median(areas)) <= 0.3 * np.median(areas)]
+
+
+def _nearest(looks: list[tuple[np.ndarray, Look]], at) -> Look:
+    """The look (:func:`_learn_looks`) taken nearest the position ``at`` (px)."""
+    return min(looks, key=lambda pl: float(np.linalg.norm(pl[0] - at)))[1]
+
+
+def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, angles: np.ndarray, speed: np.ndarray,
+                 ks=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame (or the frames ``ks``) of every object measured (:func:`measure`) around
+    ``px`` (N, n, 2), each keeping out of the others' footprints there: (N, n, 2) centres
+    (``px`` where not measured), (N, n) qualities (0: not measured, or not wholly inside the
+    image), (N, n) aligned flags."""
+    N, n = px.shape[:2]
+    shape = frames.shape[1:3]
+    known = np.all(np.isfinite(px), axis=-1)
+    pixels, quality, aligned = px.copy(), np.zeros((N, n)), np.zeros((N, n), bool)
+    for k in range(N) if ks is None else ks:
+        for i in range(n):
+            if not known[k, i] or _visible_fraction(shape, px[k, i], halves[i], angles[k, i]) < 0.999:
+                continue
+            others = [(px[k, j], halves[j], angles[k, j]) for j in range(n) if j != i and known[k, j]]
+            m = measure(frames[k], bg, _nearest(looks[i], px[k, i]), px[k, i], halves[i], angles[k, i],
+                        margin=2.0 + 0.6 * speed[k, i], blur=speed[k, i], keep_out=others)
+            if np.all(np.isfinite(m.centre)):
+                pixels[k, i], quality[k, i], aligned[k, i] = m.centre, m.quality, m.aligned
+    return pixels, quality, aligned
+
+
+def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame: int = 0, fps: float | None = None,
+                quality_min: float = 0.5, on_loss: str = "raise", first_frame: int = 0,
+                measure_frames=None) -> MatteTracks:
+    """Follow objects without texture by their colour matte (module docstring).
+
+    Three passes: (1) a rough track from ``start_frame`` forwards and backwards, matching each
+    object's look in that frame (:func:`_rough_pass`); (2) the background (the median of the
+    frames, leaving out the objects' footprints along the rough track), and each object's
+    colours and clean template from frames in which it is seen whole and alone; (3) every
+    frame measured (:func:`measure`) at the rough track's position.
+
+    Args:
+        frames: (N, H, W, 3) uint8 BGR frames.
+        start_pixels: (n, 2) centres in frame ``start_frame`` (px), objects at rest there.
+        halves: per object (half along, half across) of its footprint in px.
+        angles: per object its footprint's tilt at the start (rad, from the u axis).
+        start_frame: frame of ``start_pixels``.
+        fps: frame rate, for the times in error messages.
+        quality_min: measurements of lower quality are not valid (dropped from the fit).
+        on_loss: "raise" a :class:`~galileo_jax.errors.TrackingError` when an object is lost
+            inside the image, or "hold" (marked invalid).
+        first_frame: video frame number of ``frames[0]`` (for error messages).
+        measure_frames: frames to measure in passes (2) and (3) (default all; the others keep
+            the rough track, quality 0): a caller that needs only a few saves the time.
+
+    Returns:
+        :class:`MatteTracks`.
+
+    Raises:
+        TrackingError: an object's colour does not differ from the background at its start,
+            or its track is lost inside the image (with ``on_loss="raise"``).
+    """
+    start = np.array(start_pixels, float).reshape(-1, 2)
+    n = len(start)
+    shape = frames.shape[1:3]
+    halves = [np.asarray(h, float) for h in halves]
+    angles0 = np.asarray(angles, float).reshape(n)
+    fwd, r_f, b_f, lost_f = _rough_pass(frames, start, halves, angles0, start_frame, +1, fps, first_frame, on_loss)
+    bwd, r_b, b_b, _ = _rough_pass(frames, start, halves, angles0, start_frame, -1, fps, first_frame, "hold")
+    rough, rough_rms, rough_ok = fwd.copy(), r_f.copy(), b_f.copy()
+    rough[:start_frame], rough_rms[:start_frame], rough_ok[:start_frame] = bwd[:start_frame], r_b[:start_frame], \
+        b_b[:start_frame]
+    known = np.all(np.isfinite(rough), axis=-1)
+    angles = np.stack([_angles(np.nan_to_num(rough[:, i]), known[:, i], angles0[i]) for i in range(n)], axis=1)
+    speed = _speeds(rough)
+    reach = max(math.hypot(*h) for h in halves) + 8 + 0.6 * float(speed.max())
+    region = (np.nanmin(rough, axis=(0, 1)) - reach, np.nanmax(rough, axis=(0, 1)) + reach + 1)
+    # clean-frame candidates: the object confirmed against the scenery (:func:`_recentre`), else
+    # (an object that hardly moves) matched about as well as usual
+    good = np.isfinite(rough_rms)
+    for i in range(n):
+        r = rough_rms[:, i]
+        if good[:, i].any():
+            good[:, i] &= r <= 2.0 * np.median(r[good[:, i]]) + 2.0
+        if rough_ok[:, i].sum() >= 3:
+            good[:, i] = rough_ok[:, i]
+    # The rough track may be off the object's centre by a few px (it follows the point of the
+    # start look at the start pixel, and drifts where the look changes): the objects are
+    # measured once on a background that leaves out generous footprints along it, then again
+    # on one that leaves out their footprints along that first measurement.
+    px, look_frame = rough, np.full(n, -1)
+    for grow_extra in (0.5 * max(max(h) for h in halves), 0.0):
+        bg = colour_background(frames, _covered(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
+                               region=region)
+        looks = []
+        for i in range(n):
+            ks = _clean_frames(px, good, i, halves, speed, shape, start)
+            try:
+                looks.append(_learn_looks(frames, bg, px[:, i], ks, halves[i], angles[:, i]))
+                look_frame[i] = ks[0]
+            except ValueError:
+                raise TrackingError(f"object {i + 1}: its colour does not stand out from the background (at pixel "
+                                    f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {start_frame + first_frame}); "
+                                    "check camera.start_pixels, or try tracker: features", object_index=i) from None
+        pixels, quality, aligned = _measure_all(frames, bg, looks, px, halves, angles, speed, measure_frames)
+        good = quality >= 0.8
+        px = np.where((quality >= quality_min)[..., None], pixels, px)
+    valid = quality >= quality_min
+    lost = lost_f.copy()
+    if measure_frames is None:
+        lost = np.where(lost >= 0, lost, _unseen_till_end(valid, rough, halves, angles, shape, start_frame))
+    return MatteTracks(pixels, valid, quality, aligned, lost, rough, look_frame)
+
+
+def _unseen_till_end(valid: np.ndarray, rough: np.ndarray, halves, angles: np.ndarray, shape, start_frame: int,
+                     min_frames: int = 5) -> np.ndarray:
+    """(n,) per object the frame after its last good measurement if from there to the end it
+    is never measured again although the rough track keeps it inside the image for at least
+    ``min_frames`` frames (hidden, or lost: a board in front of it, the light gone); -1 if not."""
+    N, n = valid.shape
+    out = np.full(n, -1)
+    for i in range(n):
+        seen = np.flatnonzero(valid[:, i])
+        last = int(seen[-1]) if len(seen) else start_frame
+        after = [k for k in range(last + 1, N) if np.all(np.isfinite(rough[k, i]))
+                 and _visible_fraction(shape, rough[k, i], halves[i], angles[k, i]) >= 1.0]
+        if len(after) >= min_frames:
+            out[i] = last + 1
+    return out
