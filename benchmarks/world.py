@@ -4,7 +4,8 @@ Shared by ``benchmarks/tracking.py`` (tracking error against the renderer's trut
 ``benchmarks/fit_world.py`` (fit accuracy on such videos). A *condition* fixes what a video
 varies on purpose (the object's look, the camera's projection, the image size, motion blur);
 everything else is drawn per video from a seeded generator: the ramp angle (10-30 degrees) and
-length, cube sizes (objects 25-60 px across at 960x540, 10-15 px at 320x240), start positions,
+length, cube sizes (objects 25-60 px across at 960x540, 10-15 px at 320x240: sized for the view
+that frames the drawn motion), start positions,
 masses and frictions (``synth.draw_informative_params``: object 1 slides and reaches object 2),
 the objects' colours (one video in three in colours close to the backdrop's grey level), the
 camera distance (perspective, 1.5-3 m), the direction of motion (left in every other video),
@@ -69,11 +70,14 @@ def _colour(rng: np.random.Generator) -> tuple[float, float, float]:
     return tuple(float(c) for c in colorsys.hsv_to_rgb(rng.uniform(), rng.uniform(0.5, 0.9), rng.uniform(0.35, 0.9)))
 
 
-def world_scene(rng: np.random.Generator, size: str) -> dict:
+#: Object sizes in px (across) drawn per image size class.
+OBJECT_PX = {"960x540": (25.0, 60.0), "320x240": (10.0, 15.0)}
+
+
+def world_scene(rng: np.random.Generator, size: str, cube: float = 0.06) -> dict:
     """A two-cube ramp scene (dict for ``scene_from_dict``) drawn for an image size class."""
     angle = float(rng.uniform(10.0, 30.0))
     length = float(rng.uniform(0.7, 1.1))
-    cube = float(rng.uniform(0.045, 0.08) if size == "960x540" else rng.uniform(0.07, 0.10))
     return {
         "name": "world",
         "ramp": {"angle_deg": round(angle, 2), "length": round(length, 3), "width": 0.3},
@@ -91,19 +95,31 @@ def render_world(path: Path, condition: Condition, hand: bool, seed: int) -> dic
     exists; returns the truth record, plus the ``condition`` and the draws it was made with."""
     import json
 
+    from galileo_jax.render import frame_view
     from galileo_jax.scene import scene_from_dict
-    from galileo_jax.synth import draw_informative_params, render_video
+    from galileo_jax.synth import draw_informative_params, render_video, resolve_params, simulate_motion
 
     truth_path = path.with_suffix(".truth.json")
     if path.exists() and truth_path.exists():
         return json.loads(truth_path.read_text())
     rng = np.random.default_rng(seed)
-    scene = scene_from_dict(world_scene(rng, condition.size))
+    layout = world_scene(rng, condition.size)
     rest_frames = int(rng.integers(6, 12))
+    width, height = SIZES[condition.size]
+    target_px = float(rng.uniform(*OBJECT_PX[condition.size]))
+    scene = scene_from_dict(layout)
     params = draw_informative_params(scene, rng, (), fps=FPS, rest_frames=rest_frames, n_frames=None)
+    # the cubes' size for the drawn image size: the view fits the motion, so frame it once
+    motion = simulate_motion(scene, resolve_params(scene, params), FPS, rest_frames)
+    scale = frame_view(scene, motion.positions, width, height).scale
+    cube = float(np.clip(target_px / scale, 0.02, 0.15))
+    layout = world_scene(np.random.default_rng(seed), condition.size)
+    for obj in layout["objects"]:
+        obj["size"] = [cube] * 3
+    layout["objects"][0]["start"] = round(layout["ramp"]["length"] - cube, 3)
+    scene = scene_from_dict(layout)
     close = rng.uniform() < 1 / 3
     colours = [_grey_like(rng) if close else _colour(rng) for _ in range(2)]
-    width, height = SIZES[condition.size]
     style = dict(look=condition.look, colours=colours, camera=condition.camera,
                  camera_distance=float(rng.uniform(1.5, 3.0)), direction="left" if seed % 2 else "right",
                  blur=BLUR_SUBFRAMES if condition.blur else 0, backdrop="clutter" if rng.uniform() < 0.25 else "plain")
@@ -113,6 +129,19 @@ def render_world(path: Path, condition: Condition, hand: bool, seed: int) -> dic
     truth.update(condition=condition._asdict(), grey_like=bool(close))
     truth_path.write_text(json.dumps(truth))
     return truth
+
+
+def cached_record(video: Path, make, rerun: bool = False) -> dict:
+    """The benchmark record of ``video``: read from ``<video>.json``, or (missing, or
+    ``rerun``) made by ``make(video)`` and written there, so that a run resumes."""
+    import json
+
+    path = video.with_suffix(".json")
+    if path.exists() and not rerun:
+        return json.loads(path.read_text())
+    rec = make(video)
+    path.write_text(json.dumps(rec))
+    return rec
 
 
 def hand_frames(truth: dict) -> int:

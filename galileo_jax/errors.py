@@ -31,11 +31,13 @@ class TrackingError(GalileoError):
     """An object could not be found or its track was lost, or it never moves.
 
     ``object_index`` is the 0-based index (within the tracked group) of the object concerned,
-    or None."""
+    or None; ``at_start`` is True when the tracker could not start on it at all (too few
+    features, no colour of its own), False when it lost it later."""
 
-    def __init__(self, message: str, object_index: int | None = None):
+    def __init__(self, message: str, object_index: int | None = None, at_start: bool = False):
         super().__init__(message)
         self.object_index = object_index
+        self.at_start = at_start
 
 
 def cli_entry(main: Callable[[list[str] | None], int]) -> Callable[[list[str] | None], int]:

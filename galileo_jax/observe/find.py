@@ -230,7 +230,11 @@ def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Wi
         of ``pre`` and does not change between them (so a hand moving over it is left
         out), or None if no region of plausible size contains ``rough``.
     """
+    if not np.all(np.isfinite(rough)):  # a track that lost the object there
+        return None
     lo, hi = _roi_box(background.shape[:2], rough, _crop_radius(window))
+    if np.any(hi - lo < 3):  # ``rough`` outside the image: nothing to see (and OpenCV asserts on empty arrays)
+        return None
     crop = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
     last = pre[-1][crop]
     d_bg = np.stack([_diff(p[crop], background[crop]) for p in pre])
@@ -258,21 +262,21 @@ def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Wi
     return np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]]) + lo
 
 
-def _centre_in_motion(frames, k: int, rough, window: Window, k_start: int, k1: int, n: int = 25) -> np.ndarray:
+def _centre_in_motion(frames, k: int, rough, window: Window, k_start: int, k1: int, n: int = 25
+                      ) -> np.ndarray | None:
     """Object 1's centre in frame ``k``, where the motion detector saw it a couple of
     diagonals down its path (``rough``, often half an object off: flow inside a plain object
     is vague): the centroid of its silhouette (:func:`silhouette_centre`) against the median
     of frames in which it was elsewhere: at rest before ``k_start`` (up the ramp), and
     after it has gone as far again (it took ``k - k1`` frames to come here from where it
-    started, and accelerates). ``rough`` if no silhouette of its size is found there."""
+    started, and accelerates). None if no silhouette of its size is found there."""
     later = k + 2 * (k - k1) + 2
     idx = list(range(0, k_start)) + list(range(later, len(frames)))
     if len(idx) < 3:
-        return np.asarray(rough, float)
+        return None
     idx = np.asarray(idx)[np.unique(np.linspace(0, len(idx) - 1, min(n, len(idx))).round().astype(int))]
     background = np.median(frames[idx], axis=0).astype(np.uint8)
-    found = silhouette_centre(frames[k:k + 1], background, rough, window)
-    return np.asarray(rough, float) if found is None else found
+    return silhouette_centre(frames[k:k + 1], background, rough, window)
 
 
 def _off_path(disp: np.ndarray, k_from: int, direction: np.ndarray, n: int = 15) -> float:
@@ -395,6 +399,24 @@ def _checked(centre, rough, window: Window):
     return centre
 
 
+class Located(NamedTuple):
+    """Where the objects are found (:func:`locate_objects`).
+
+    Attributes:
+        pixels: (n, 2) centres (u, v) in px in frame ``frame``, where object 1 rests for the
+            last time before it slides (a hand that held it may still be there).
+        frame: that frame.
+        clean_pixels: (n, 2) centres in frame ``clean_frame``, a few frames later, where object
+            1 was seen whole, clear of the hand, and the other objects still rest; or None.
+        clean_frame: that frame, or None.
+    """
+
+    pixels: np.ndarray
+    frame: int
+    clean_pixels: np.ndarray | None
+    clean_frame: int | None
+
+
 def never_moves_error(scene: Scene) -> TrackingError:
     """The error for a video in which object 1 does not slide."""
     tan = math.tan(scene.ramp.angle)
@@ -409,14 +431,14 @@ def find_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
     Raises:
         TrackingError: as :func:`locate_objects`.
     """
-    start, k = locate_objects(frames, scene, calib, background)
+    start, k = locate_objects(frames, scene, calib, background)[:2]
     if k == 0:
         return start
     return track_scene(frames[: k + 1], start, scene, calib, start_frame=k, background=background).tracks.pixels[0]
 
 
 def locate_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
-                   background: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+                   background: np.ndarray | None = None) -> Located:
     """Find the objects from the motion in the video and the scene's geometry.
 
     Object 1 is the first region that starts a steady motion down the ramp's image
@@ -441,9 +463,10 @@ def locate_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
         background: grey background (:func:`background_model`), computed if not given.
 
     Returns:
-        ``(start_pixels, k)``: (n_objects, 2) centres (u, v) in px in frame k, the last
-        frame in which object 1 rests before it starts to slide (a hand that let go and
-        left is gone or leaving); track from there (:func:`track_scene`).
+        :class:`Located`: the centres in the last frame in which object 1 rests before it
+        starts to slide (a hand that let go may still be there); track from there
+        (:func:`track_scene`); and, where object 1 was seen clear of the hand a few frames
+        later, the centres there (the colour tracker starts from them).
 
     Raises:
         TrackingError: nothing moves down the ramp (object 1 never moves, or is not seen
@@ -455,7 +478,8 @@ def locate_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
     prior = expected_start_pixels(scene, calib) if scene.camera.foot_pixel is not None else None
     p1, k1, p_far, k_far = _find_first(small, scene, calib, wins[0], prior)
     k_start = _rest_frame(small, k1, p1, wins[0], path_direction(scene, calib, 0))  # tracked from here
-    p_far = _centre_in_motion(frames, k_far, p_far, wins[0], k_start, k1)
+    seen_far = _centre_in_motion(frames, k_far, p_far, wins[0], k_start, k1)
+    p_far = p_far if seen_far is None else seen_far
     method = tracker_of(scene, 0)
     rest, disp1 = _displacements(frames, k_start, p1, wins[0], bg, method, k_at=k_far, start_at=p_far,
                                  k_check=k1, direction=path_direction(scene, calib, 0))
@@ -471,10 +495,16 @@ def locate_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
             p1 = p1 if refined is None else refined
             break
         p1 = refined
-    out = [p1]
+    out, clean = [p1], [p_far]
     if scene.n_objects == 2:
-        out.append(_find_second(frames, small, scene, calib, wins, p1, p1 + disp1, k1, prior, bg))
-    return np.array(out), k_start
+        p2, k2 = _find_second(frames, small, scene, calib, wins, p1, p1 + disp1, k1, prior, bg)
+        out.append(p2)
+        clean.append(p2)
+        if k2 is not None and k2 <= k_far:  # object 2 already moving there: no clean start
+            seen_far = None
+    if seen_far is None:
+        return Located(np.array(out), k_start, None, None)
+    return Located(np.array(out), k_start, np.array(clean), k_far)
 
 
 def _rest_frame(small: _Small, k: int, centre, window: Window, direction: np.ndarray) -> int:
@@ -568,26 +598,27 @@ def _change_onset(small: _Small, centre, window: Window, k_start: int, exclude) 
     return None
 
 
-def _find_second(frames, small: _Small, scene, calib, wins, p1, track1, k1, prior, bg) -> np.ndarray:
-    """Object 2's start pixel (see :func:`find_objects`); ``track1`` (N, 2) object 1's pixels."""
+def _find_second(frames, small: _Small, scene, calib, wins, p1, track1, k1, prior, bg) -> tuple[np.ndarray, int | None]:
+    """Object 2's start pixel (see :func:`find_objects`) and the frame it starts to change
+    (None if it never does); ``track1`` (N, 2) object 1's pixels."""
     expected = prior[1] if prior is not None else expected_start_pixels(scene, calib, p1)[1]
     w1, w2 = wins
     footprints = _footprints(track1, w1, small)
     k2 = _change_onset(small, expected, w2, k1, lambda k: footprints(k))
     if k2 is None:
-        return expected
+        return expected, None
     try:
         rest, disp2 = _displacements(frames, 0, expected, w2, bg, tracker_of(scene, 1),
                                      direction=path_direction(scene, calib, 1), k_check=k2)
     except TrackingError:
-        return expected
+        return expected, k2
     if rest is not None:  # followed by colour: measured where it rests
-        return rest
+        return rest, k2
     clear_r = math.hypot(*w1.half) + _crop_radius(w2) + 2  # object 1 outside the silhouette's crop
     refined = _refine_in_motion(frames, k2, expected, w2, disp2,
                                 clear=lambda k, at: np.linalg.norm(track1[k] - at) > clear_r)
     if refined is None:
         refined = _refine(frames, k2, expected, w2, disp2,
                           clear=lambda k: np.linalg.norm(track1[k] - expected) > clear_r)
-    return expected if refined is None else refined
+    return (expected if refined is None else refined), k2
 

@@ -384,7 +384,8 @@ def track_objects(frames: np.ndarray, start_pixels, windows=None, *, background:
         tr.look = _look(f0.gray, tr, prm.background)
         if len(tr.pts) < min_features:
             raise TrackingError(f"object {i + 1}: only {len(tr.pts)} trackable features around its start pixel "
-                                f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame 0; check camera.start_pixels")
+                                f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {first_frame}; "
+                                "check camera.start_pixels", object_index=i, at_start=True)
     pixels = np.zeros((N, n, 2))
     valid = np.zeros((N, n), bool)
     count = np.zeros((N, n), int)
@@ -461,11 +462,11 @@ def _advance(i, k, tr: _Track, tracks, f0: _Frame, f1: _Frame, prm: _Params, fps
         stopped = speed < 0.5 and (was_fast or tr.strikes > 0)
         tr.strikes = tr.strikes + 1 if stopped and _on_background(f1.gray, tr, prm) else 0
         if tr.strikes >= 2:
-            raise TrackingError(_stuck_message(i, k, fps))
+            raise TrackingError(_stuck_message(i, k, fps), object_index=i)
         return n
     if inside_fraction(tr.corners(t=tr.t + tr.velocity), f1.gray.shape) < 0.75:
         tr.alive = False
         return 0
-    raise TrackingError(lost_message(i, k, fps, n))
+    raise TrackingError(lost_message(i, k, fps, n), object_index=i)
 
 

@@ -9,7 +9,8 @@ such an object in every frame from its *colour matte* instead:
   along a first, rough track); pixels no frame shows free (an object that never moves) are
   filled from their surroundings (``cv2.inpaint``).
 * **Matte** (:func:`matte`): a pixel I in front of the background B is explained by the object
-  if it lies on the segment from B to one of the object's colours F_k, I = B + alpha (F_k - B):
+  if it lies on the segment from B to one of the object's colours F_k (or F_k brightened or
+  darkened by up to :data:`GAIN`, as light and shade change along the path), I = B + alpha (F_k - B):
   alpha in [0, 1] is the fraction of the pixel the object covers (anti-aliased edges, motion
   blur), the linear "difference matting" of a single-colour object over a known background
   (Smith & Blinn, "Blue screen matting", SIGGRAPH 1996, eq. 3, with a per-pixel background).
@@ -68,6 +69,12 @@ LOST_RMS = 3.0
 LOST_FLOOR = 12.0
 #: Turn (rad) of the template tried either way when the rough pass searches wider.
 WIDE_TURN = math.radians(15.0)
+#: Relative change of an object's colour along its path (light, shading) that its palette
+#: still explains (measured: 10% between the two ends of a rendered perspective scene).
+SHADING = 0.12
+#: Brightness change of an object's colours (relative) that the matte allows pixel by pixel
+#: (the object passing into shade, or nearer a lamp).
+GAIN = 0.35
 #: Smallest background threshold in grey levels (compressed video hides small noise in static
 #: areas, and its blocks differ by a few levels).
 BACKGROUND_MIN = 8.0
@@ -80,10 +87,13 @@ class ColourBackground(NamedTuple):
     Attributes:
         image: (H, W, 3) float32 BGR background.
         noise_sd: pixel noise SD of one channel (grey levels), from frames minus background.
+        median: (h, w, 3) float32 plain per-pixel median of the sampled frames over the region
+            computed (objects not left out), or None; a later call may reuse it.
     """
 
     image: np.ndarray
     noise_sd: float
+    median: np.ndarray | None = None
 
 
 class Palette(NamedTuple):
@@ -92,8 +102,10 @@ class Palette(NamedTuple):
     Attributes:
         colours: (K, 3) float32 BGR colours of its surfaces (K <= 4; k-means centres).
         tolerance: colour distance (grey levels) within which a pixel counts as explained by
-            them: the residual threshold for the noise, or twice the 90th percentile of the
-            object's own pixels' distance to their nearest colour (shading, texture) if larger.
+            them: the largest of the residual threshold for the noise, twice the 90th
+            percentile of the object's own pixels' distance to their nearest colour (texture),
+            and :data:`SHADING` times its brightest colour's length (the light on it changes
+            along its path).
     """
 
     colours: np.ndarray
@@ -146,7 +158,20 @@ def _sample(n_frames: int, n: int) -> np.ndarray:
     return np.unique(np.linspace(0, n_frames - 1, min(n, n_frames)).round().astype(int))
 
 
-def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None) -> ColourBackground:
+def _nanmedian0(vals: np.ndarray) -> np.ndarray:
+    """Median over axis 0 ignoring NaNs (as ``np.nanmedian(vals, axis=0)``, which for a short
+    axis goes through masked arrays, ~6x slower); columns with no value give NaN."""
+    s = np.sort(vals, axis=0)  # NaNs sort last
+    c = (~np.isnan(vals)).sum(axis=0)
+    lo = np.take_along_axis(s, np.maximum((c - 1) // 2, 0)[None], axis=0)[0]
+    hi = np.take_along_axis(s, np.maximum(c // 2, 0)[None], axis=0)[0]
+    out = (lo + hi) / 2
+    out[c == 0] = np.nan
+    return out
+
+
+def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None,
+                      median: np.ndarray | None = None) -> ColourBackground:
     """The static background of a video, in colour.
 
     Args:
@@ -158,6 +183,9 @@ def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None
         n: frames sampled, evenly over the video.
         region: optional ``(lo, hi)`` corners (u, v) in px of the rectangle to compute (the
             objects' paths); outside it the background is left 0.
+        median: optional (h, w, 3) float32 plain median of the sampled frames over ``region``
+            (:attr:`ColourBackground.median` of an earlier call with the same frames, ``n``
+            and ``region``), reused instead of computed again.
 
     Returns:
         :class:`ColourBackground`; pixels covered in every sampled frame are taken from the
@@ -169,9 +197,11 @@ def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None
     part = frames[:, y0:y1, x0:x1]
     cut = (lambda k: covered(k)[y0:y1, x0:x1]) if covered is not None else None
     idx = _sample(len(frames), n)
-    inner = np.empty(part.shape[1:], np.float32)
-    for r in range(0, inner.shape[0], 64):  # in bands of rows, to bound the float copy
-        inner[r:r + 64] = np.median(part[idx, r:r + 64], axis=0)
+    if median is None:
+        median = np.empty(part.shape[1:], np.float32)
+        for r in range(0, median.shape[0], 64):  # in bands of rows, to bound the float copy
+            median[r:r + 64] = np.median(part[idx, r:r + 64], axis=0)
+    inner = median.copy()
     if cut is not None:
         masks = np.stack([cut(k) for k in idx])  # (n, h, w)
         hit = masks.any(axis=0)
@@ -180,8 +210,7 @@ def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None
             vals = part[idx][:, ys, xs].astype(np.float32)  # (n, m, 3)
             vals[masks[:, ys, xs]] = np.nan
             free = ~np.isnan(vals[..., 0]).all(axis=0)
-            with np.errstate(all="ignore"):
-                inner[ys[free], xs[free]] = np.nanmedian(vals[:, free], axis=0)
+            inner[ys[free], xs[free]] = _nanmedian0(vals[:, free])
             never = np.zeros(hit.shape, bool)
             never[ys[~free], xs[~free]] = True
             if never.any():
@@ -192,7 +221,7 @@ def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None
                                     cv2.INPAINT_TELEA).astype(np.float32)
     out = np.zeros((H, W, 3), np.float32)
     out[y0:y1, x0:x1] = inner
-    return ColourBackground(out, _noise_sd(part, inner, cut, idx))
+    return ColourBackground(out, _noise_sd(part, inner, cut, idx), median)
 
 
 def _fill_from_all_frames(frames, covered, never: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -205,8 +234,7 @@ def _fill_from_all_frames(frames, covered, never: np.ndarray, out: np.ndarray) -
         acc[k, free] = frames[k, ys[free], xs[free]]
     seen = ~np.isnan(acc[..., 0]).all(axis=0)
     if seen.any():
-        with np.errstate(all="ignore"):
-            out[ys[seen], xs[seen]] = np.nanmedian(acc[:, seen], axis=0)
+        out[ys[seen], xs[seen]] = _nanmedian0(acc[:, seen])
     left = np.zeros_like(never)
     left[ys[~seen], xs[~seen]] = True
     return left
@@ -257,16 +285,31 @@ def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd:
     best_r2 = np.full(dd.shape, np.inf, np.float32)
     alpha = np.zeros(dd.shape, np.float32)
     contrast2 = np.zeros(dd.shape, np.float32)
-    for F in np.asarray(palette.colours, np.float32):
-        e = F[None, None, :] - background
+    colours = np.asarray(palette.colours, np.float32)
+
+    def unmix(F):
+        """alpha, squared residual and squared contrast of every pixel against colours F (h, w, 3)."""
+        e = F - background
         ee = np.einsum("hwc,hwc->hw", e, e)
         de = np.einsum("hwc,hwc->hw", d, e)
         a = np.clip(de / np.maximum(ee, 1e-6), 0.0, 1.0)
-        r2 = dd - 2 * a * de + a * a * ee  # |d - a e|^2
+        return a, dd - 2 * a * de + a * a * ee, ee  # |d - a e|^2
+
+    for F in colours:
+        a, r2, ee = unmix(np.broadcast_to(F, background.shape))
         take = r2 < best_r2
-        best_r2 = np.where(take, r2, best_r2)
-        alpha = np.where(take, a, alpha)
+        best_r2, alpha = np.where(take, r2, best_r2), np.where(take, a, alpha)
         contrast2 = np.maximum(contrast2, ee)
+    # where no colour explains a pixel as learned, the colour as the light there makes it (a
+    # gain in [1 - GAIN, 1 + GAIN], from the pixel taken as wholly the object's): shade, a lamp
+    # to one side; edges already explained keep their alpha
+    far = best_r2 > res_thr * res_thr
+    if far.any():
+        for F in colours:
+            g = np.clip(np.einsum("hwc,c->hw", image, F) / max(float(F @ F), 1e-6), 1.0 - GAIN, 1.0 + GAIN)
+            a, r2, _ = unmix(g[..., None] * F)
+            take = far & (r2 < best_r2)
+            best_r2, alpha = np.where(take, r2, best_r2), np.where(take, a, alpha)
     best_r = np.sqrt(np.maximum(best_r2, 0.0))
     contrast = np.sqrt(contrast2)
     is_bg = dd < bg_thr * bg_thr
@@ -514,7 +557,8 @@ def object_colours(frames, background: ColourBackground, centres, half, angles, 
         raise ValueError("the object does not differ from the background")
     colours = _colours(pool, min_share=min_share)
     spread = np.min(np.linalg.norm(pool[:, None, :] - colours[None], axis=-1), axis=1)
-    return Palette(colours, float(max(res_thr, 2.0 * np.quantile(spread, 0.9))))
+    shading = SHADING * float(np.linalg.norm(colours, axis=1).max())
+    return Palette(colours, float(max(res_thr, 2.0 * np.quantile(spread, 0.9), shading)))
 
 
 def learn_template(frame, background: ColourBackground, palette: Palette, centre, half, angle: float,
@@ -781,7 +825,7 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
                                      recent_rms[i][-10:])
         # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
         chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
-                         halves)
+                         halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))})
         # 3. update (a match far worse than the recent ones is no match: the object is hidden)
         for i, opts in options.items():
             recent = recent_rms[i][-10:]
@@ -851,16 +895,25 @@ def _candidates(frame, tpl: _Template, pred, speed: float, half, recent: list) -
     return sorted(((c, r, t, cost(c, r)) for c, r, t in out), key=lambda o: o[3])[:8]
 
 
-def _choose(options: dict, fixed: dict, halves) -> dict:
+def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) -> dict:
     """One candidate per object (:func:`_candidates`) minimising the summed cost, with no two
-    objects (also those ``fixed`` where they are) closer than 0.8 times the sum of their
-    smaller half sizes. Objects without candidates are left out."""
+    objects (also those ``fixed`` where they are) closer than half the sum of their
+    smaller half sizes, and, where ``previous`` gives both objects' positions in the frame
+    before, in the same order as there (the vector from one to the other does not turn by
+    more than 90 degrees in a frame: two objects on one ramp cannot pass through each other;
+    without this, look-alikes that collide may swap identities). Objects without candidates
+    are left out."""
     ids = [i for i in options if options[i]]
     if not ids:
         return {}
+    previous = previous or {}
 
     def apart(i, c, j, d):
-        return np.linalg.norm(c - d) >= 0.8 * (min(halves[i]) + min(halves[j]))
+        if np.linalg.norm(c - d) < 0.5 * (min(halves[i]) + min(halves[j])):  # touching: the full sum
+            return False
+        if i in previous and j in previous:
+            return float(np.dot(c - d, previous[i] - previous[j])) > 0.0
+        return True
 
     best, best_cost = None, np.inf
     for combo in itertools.product(*(range(len(options[i])) for i in ids)):
@@ -950,7 +1003,8 @@ def _learn_looks(frames, bg: ColourBackground, px: np.ndarray, ks, half, angles:
     from each of up to ``n_looks`` of them spread along its path, with the position it was
     taken at. Where the camera is perspective or the object turns, its silhouette changes
     along its path; each frame is then measured with the nearest look (:func:`_nearest`).
-    Templates whose area is more than 30% from their median are left out.
+    Templates whose area is not 0.5 to 1.6 times the object's footprint (a frame in which
+    something else was taken for it, or most of it was missed) are left out.
 
     Raises:
         ValueError: no clean frame, or the object does not differ from the background.
@@ -967,8 +1021,11 @@ def _learn_looks(frames, bg: ColourBackground, px: np.ndarray, ks, half, angles:
             continue
     if not looks:
         raise ValueError("no matte at the object's position")
-    areas = np.array([lk.area for _, lk in looks])
-    return [(p, lk) for p, lk in looks if abs(lk.area - np.median(areas)) <= 0.3 * np.median(areas)]
+    expected = 4.0 * half[0] * half[1]  # the footprint's area (a near face in perspective: up to half again)
+    kept = [(p, lk) for p, lk in looks if 0.5 * expected <= lk.area <= 1.6 * expected]
+    if not kept:
+        raise ValueError("no matte at the object's position")
+    return kept
 
 
 def _nearest(looks: list[tuple[np.ndarray, Look]], at) -> Look:
@@ -1057,11 +1114,13 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     # The rough track may be off the object's centre by a few px (it follows the point of the
     # start look at the start pixel, and drifts where the look changes): the objects are
     # measured once on a background that leaves out generous footprints along it, then again
-    # on one that leaves out their footprints along that first measurement.
+    # on one that leaves out their footprints along that first measurement (measured: the
+    # second pass halves the error where the first background had to be filled in).
     px, look_frame = rough, np.full(n, -1)
+    bg = None
     for grow_extra in (0.5 * max(max(h) for h in halves), 0.0):
         bg = colour_background(frames, _covered(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
-                               region=region)
+                               region=region, median=None if bg is None else bg.median)
         looks = []
         for i in range(n):
             ks = _clean_frames(px, good, i, halves, speed, shape, start)
@@ -1073,7 +1132,11 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
                                     f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {start_frame + first_frame}); "
                                     "check camera.start_pixels, or try tracker: features", object_index=i) from None
         pixels, quality, aligned = _measure_all(frames, bg, looks, px, halves, angles, speed, measure_frames)
-        good = quality >= 0.8
+        if measure_frames is None:
+            good = quality >= 0.8
+        else:  # frames not measured keep their rough-pass verdict
+            ks = np.asarray(list(measure_frames), int)
+            good[ks] = quality[ks] >= 0.8
         px = np.where((quality >= quality_min)[..., None], pixels, px)
     valid = quality >= quality_min
     lost = lost_f.copy()
@@ -1083,10 +1146,11 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
 
 
 def _unseen_till_end(valid: np.ndarray, rough: np.ndarray, halves, angles: np.ndarray, shape, start_frame: int,
-                     min_frames: int = 5) -> np.ndarray:
+                     min_frames: int = 5, min_share: float = 0.25) -> np.ndarray:
     """(n,) per object the frame after its last good measurement if from there to the end it
     is never measured again although the rough track keeps it inside the image for at least
-    ``min_frames`` frames (hidden, or lost: a board in front of it, the light gone); -1 if not."""
+    ``min_frames`` frames and ``min_share`` of the video (hidden, or lost: a board in front of
+    it, the light gone); -1 if not (a shorter unmeasured end is dropped, not an error)."""
     N, n = valid.shape
     out = np.full(n, -1)
     for i in range(n):
@@ -1094,6 +1158,6 @@ def _unseen_till_end(valid: np.ndarray, rough: np.ndarray, halves, angles: np.nd
         last = int(seen[-1]) if len(seen) else start_frame
         after = [k for k in range(last + 1, N) if np.all(np.isfinite(rough[k, i]))
                  and _visible_fraction(shape, rough[k, i], halves[i], angles[k, i]) >= 1.0]
-        if len(after) >= min_frames:
+        if len(after) >= max(min_frames, min_share * N):
             out[i] = last + 1
     return out

@@ -161,7 +161,7 @@ def track_circles(frames: np.ndarray, start_pixels, radii, *, fps: float | None 
             if found is None:
                 misses[i] += 1
                 if misses[i] >= 2 and on_loss == "raise":
-                    raise TrackingError(lost_message(i, k + first_frame, fps, 0))
+                    raise TrackingError(lost_message(i, k + first_frame, fps, 0), object_index=i)
                 if misses[i] >= 2:
                     alive[i] = False
                     pixels[k:, i] = pixels[k - 1, i]

@@ -182,13 +182,15 @@ def observe(video_path_or_clip, scene: Scene, fps: float | None = None, progress
         clip = read_video(Path(video_path_or_clip), fps_override=override)
     calib = calibration(scene.camera)
     background = background_model(clip.frames)
-    start_frame = 0
+    start_frame, clean = 0, None
     if scene.camera.start_pixels is not None:
         start_px = np.asarray(scene.camera.start_pixels, float)
     else:
-        start_px, start_frame = locate_objects(clip.frames, scene, calib, background)
+        found = locate_objects(clip.frames, scene, calib, background)
+        start_px, start_frame = found.pixels, found.frame
+        clean = None if found.clean_frame is None else (found.clean_frame, found.clean_pixels)
     tracked = track_scene(clip.frames, start_px, scene, calib, start_frame=start_frame, background=background,
-                          fps=clip.fps, progress=progress)
+                          fps=clip.fps, progress=progress, colour_start=clean)
     return observation_from_tracks(tracked, scene, clip.fps, anchor_frame=start_frame)
 
 

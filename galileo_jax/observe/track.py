@@ -10,7 +10,9 @@
 
 ``tracker: auto`` (the scene's default) picks ``outline`` for spheres; for the others it first
 follows the object by its colour, then looks at the object in the clean frame the colour
-tracker learned it from: with texture inside it (:func:`has_texture`), KLT follows it too and
+tracker learned it from: with texture inside it (:func:`has_texture`), or if its colour track
+was lost, KLT follows it too (and if KLT cannot, the colour track is kept, with the frames
+it could not measure left out) and
 the two tracks are compared (:func:`_cross_check`): where they agree, the steadier one is kept
 (frames in which they disagree by more than :data:`CROSS_CHECK_PX` are dropped from a kept KLT
 track); where they do not, KLT is kept. Without texture, the colour track is the answer. An object whose
@@ -29,7 +31,8 @@ from galileo_jax.errors import TrackingError
 from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import footprint, track_matte
 from galileo_jax.observe.outline import track_circles
-from galileo_jax.observe.tracks import Tracks, as_gray, estimate_noise_sd, object_windows
+from galileo_jax.observe.tracks import (Tracks, Window, as_gray, estimate_noise_sd, object_windows, path_direction,
+                                        window_corners)
 from galileo_jax.scene import Scene
 
 #: Frames in which a KLT track and the colour track of the same object disagree by more than
@@ -44,9 +47,10 @@ STEADIER = 0.8
 #: grey) that counts as texture: a plain patch with pixel noise of SD 6 grey levels stays
 #: below 0.0006, a 10 px checker of contrast 70 reaches 0.02 (measured).
 TEXTURE_EIGENVALUE = 0.002
-#: Share of the object's inner pixels (its footprint shrunk to 60%, away from its outline)
-#: that must be textured for KLT to follow it.
+#: Share of the object's inner pixels (its footprint shrunk to 60%, and at least
+#: :data:`TEXTURE_MARGIN` px inside its outline) that must be textured for KLT to follow it.
 TEXTURE_SHARE = 0.1
+TEXTURE_MARGIN = 4.0
 
 
 class SceneTracks(NamedTuple):
@@ -84,9 +88,11 @@ def tracker_of(scene: Scene, i: int) -> str:
 
 def has_texture(frame: np.ndarray, centre, half, angle: float) -> bool:
     """Whether an object shows texture KLT can follow inside its outline: at least
-    :data:`TEXTURE_SHARE` of the pixels of its footprint shrunk to 60% (``centre`` (2,) px,
-    ``half`` (along, across) px, tilt ``angle`` rad) have a structure-tensor eigenvalue above
-    :data:`TEXTURE_EIGENVALUE` (Shi & Tomasi 1994's corner measure)."""
+    :data:`TEXTURE_SHARE` of the pixels of its footprint shrunk to 60% and
+    :data:`TEXTURE_MARGIN` px inside its outline (``centre`` (2,) px, ``half`` (along, across)
+    px, tilt ``angle`` rad) have a structure-tensor eigenvalue above
+    :data:`TEXTURE_EIGENVALUE` (Shi & Tomasi 1994's corner measure); an object too small to
+    leave such a region has none."""
     gray = as_gray(frame)
     r = int(np.ceil(np.hypot(*half))) + 4
     c = np.asarray(centre, float)
@@ -95,7 +101,11 @@ def has_texture(frame: np.ndarray, centre, half, angle: float) -> bool:
     crop = gray[lo[1]:hi[1], lo[0]:hi[0]]
     if crop.shape[0] < 7 or crop.shape[1] < 7:
         return False
-    inner = footprint(crop.shape, c, 0.6 * np.asarray(half, float), angle, offset=lo)
+    # well inside the outline: the 5 px block of the corner measure must not reach the edges
+    inner_half = np.minimum(0.6 * np.asarray(half, float), np.asarray(half, float) - TEXTURE_MARGIN)
+    if inner_half.min() < 2.0:
+        return False  # too small to hold KLT features inside it
+    inner = footprint(crop.shape, c, inner_half, angle, offset=lo)
     if inner.sum() < 4:
         return False
     eig = cv2.cornerMinEigenVal(np.ascontiguousarray(crop), 5)
@@ -103,8 +113,8 @@ def has_texture(frame: np.ndarray, centre, half, angle: float) -> bool:
 
 
 def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibration, *, start_frame: int = 0,
-                background: np.ndarray | None = None, fps: float | None = None, progress: bool = False
-                ) -> SceneTracks:
+                background: np.ndarray | None = None, fps: float | None = None, progress: bool = False,
+                colour_start: tuple[int, np.ndarray] | None = None) -> SceneTracks:
     """Track every object of a scene, each by its method (module docstring), with windows
     from the scene's sizes.
 
@@ -123,6 +133,8 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
         background: grey background for :func:`track_objects`.
         fps: frame rate for error messages.
         progress: show progress bars.
+        colour_start: optional (frame, (n, 2) centres) from which the colour tracker starts
+            instead (objects clear of a hand there, :class:`~galileo_jax.observe.find.Located`).
 
     Returns:
         :class:`SceneTracks`.
@@ -135,31 +147,79 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     n = scene.n_objects
     wins = object_windows(scene, calib)
     methods = [tracker_of(scene, i) for i in range(n)]
-    colour = _colour_tracks(frames, start, wins, methods, start_frame, fps)
+    k_colour, px_colour = (start_frame, start) if colour_start is None else (colour_start[0], colour_start[1])
+    colour = _colour_tracks(frames, np.asarray(px_colour, float).reshape(-1, 2), wins, methods, int(k_colour), fps)
     for i in range(n):
         if methods[i] == "auto":
             k = int(colour[i][4]) if i in colour else -1
-            plain = i in colour and k >= 0 and not has_texture(frames[k], colour[i][0][k], wins[i].half,
-                                                                 wins[i].angle if k <= start_frame else
-                                                                 _tilt(colour[i][0], k, wins[i].angle))
+            plain = i in colour and colour[i][3] < 0 and k >= 0 and not has_texture(
+                frames[k], colour[i][0][k], wins[i].half,
+                wins[i].angle if k <= start_frame else _tilt(colour[i][0], k, wins[i].angle))
             methods[i] = "colour" if plain else "features"
+    kw = dict(background=background, fps=fps, progress=progress, start_frame=start_frame)
+    klt = [i for i in range(n) if methods[i] == "features"]
     parts: dict[int, tuple] = {}
+    while klt:  # KLT; an "auto" object it cannot follow falls back to its colour track
+        try:
+            tr = _both_ways(track_objects, frames, start[klt], [wins[i] for i in klt], **kw)
+        except TrackingError as err:
+            j = getattr(err, "object_index", None)
+            i = None if j is None else klt[j]
+            # the colour track stands in where KLT cannot even start (a small or plain object),
+            # or where KLT lost the object but the colour tracker did not
+            if i is None or scene.objects[i].tracker != "auto" or i not in colour or \
+                    (colour[i][3] >= 0 and not err.at_start):
+                raise _in_scene(err, klt) from None
+            methods[i] = "colour"
+            klt.remove(i)
+            continue
+        parts.update({i: tuple(f[:, j] for f in tr) for j, i in enumerate(klt)})
+        break
     for i in range(n):
         if methods[i] == "colour":
             px, valid, quality = colour[i][:3]
             parts[i] = (px, valid, valid.astype(int), quality)
-    kw = dict(background=background, fps=fps, progress=progress, start_frame=start_frame)
-    klt = [i for i in range(n) if methods[i] == "features"]
-    if klt:
-        tr = _both_ways(track_objects, frames, start[klt], [wins[i] for i in klt], **kw)
-        parts.update({i: tuple(f[:, j] for f in tr) for j, i in enumerate(klt)})
     circ = [i for i in range(n) if methods[i] == "outline"]
     if circ:
-        tr = _both_ways(track_circles, frames, start[circ], [wins[i].half[0] for i in circ], **kw)
+        try:
+            tr = _both_ways(track_circles, frames, start[circ], [wins[i].half[0] for i in circ], **kw)
+        except TrackingError as err:
+            raise _in_scene(err, circ) from None
         parts.update({i: tuple(f[:, j] for f in tr) for j, i in enumerate(circ)})
     tracks = Tracks(*(np.stack([parts[i][m] for i in range(n)], axis=1) for m in range(4)))
-    tracks, agree, dropped = _cross_check(tracks, colour, methods)  # may switch a method to "colour"
-    return SceneTracks(tracks, tuple(methods), agree, dropped)
+    downhill = [path_direction(scene, calib, i) for i in range(n)]
+    tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame)  # may switch to "colour"
+    cut = [i for i in range(n) if methods[i] != "outline"]
+    return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
+
+
+def _in_scene(err: TrackingError, ids: list[int]) -> TrackingError:
+    """A tracker's error about object ``j`` of the subset ``ids`` it followed, told with the
+    object's number in the scene (its messages start "object {j + 1}")."""
+    j = err.object_index
+    if j is None or not 0 <= j < len(ids):
+        return err
+    return TrackingError(str(err).replace(f"object {j + 1}", f"object {ids[j] + 1}", 1), object_index=ids[j],
+                         at_start=err.at_start)
+
+
+def _inside_only(tracks: Tracks, wins, shape, objects) -> Tracks:
+    """Frames in which one of ``objects``' footprint (its window at the tracked centre, grown
+    by 1 px) is not wholly inside the image are not measured (valid False, quality 0): an
+    object cut by the image's border is seen only in part, and KLT's and the colour matte's
+    centres are then biased towards the part they see (a circle fitted to the visible part of
+    an outline is not, so outline-tracked objects are not in ``objects``)."""
+    px = tracks.pixels
+    h, w = shape
+    valid, quality = tracks.valid.copy(), tracks.quality.copy()
+    for i in objects:
+        win = wins[i]
+        grown = Window((win.half[0] + 1, win.half[1] + 1), win.angle)
+        for k in np.flatnonzero(valid[:, i]):
+            c = window_corners(px[k, i], grown)
+            if c.min() < 0 or c[:, 0].max() > w - 1 or c[:, 1].max() > h - 1:
+                valid[k, i], quality[k, i] = False, 0.0
+    return tracks._replace(valid=valid, quality=quality)
 
 
 def _tilt(px: np.ndarray, k: int, angle0: float) -> float:
@@ -175,8 +235,9 @@ def _tilt(px: np.ndarray, k: int, angle0: float) -> float:
 def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_frame: int, fps) -> dict:
     """Colour tracks of the objects whose method is "colour" or "auto", followed together
     (each keeps out of the others' footprints): ``{i: (pixels, valid, quality, lost,
-    look_frame)}``. An "auto" object that cannot be followed by colour is left out (KLT takes
-    it); a "colour" one raises.
+    look_frame)}`` (``lost`` >= 0: the frame from which the track was lost). An "auto" object
+    whose colour does not stand out is left out (KLT takes it); a "colour" one raises, as does
+    a lost "colour" track.
 
     Raises:
         TrackingError: a ``tracker: colour`` object's colour does not stand out from the
@@ -195,13 +256,11 @@ def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_fr
             continue
         out = {}
         for j, i in enumerate(group):
-            if mt.lost[j] >= 0:
-                if methods[i] == "colour":
-                    when = f" (t = {mt.lost[j] / fps:.2f} s)" if fps else ""
-                    raise TrackingError(f"object {i + 1} track lost at frame {mt.lost[j]}{when}: its colour no longer "
-                                        "stands out from the background (occluded, or out of the light?); check the "
-                                        "video, or try tracker: features")
-                continue
+            if mt.lost[j] >= 0 and methods[i] == "colour":
+                when = f" (t = {mt.lost[j] / fps:.2f} s)" if fps else ""
+                raise TrackingError(f"object {i + 1} track lost at frame {mt.lost[j]}{when}: its colour no longer "
+                                    "stands out from the background (occluded, or out of the light?); check the "
+                                    "video, or try tracker: features")
             out[i] = (mt.pixels[:, j], mt.valid[:, j], mt.quality[:, j], mt.lost[j], mt.look_frame[j])
         return out
     return {}
@@ -238,10 +297,34 @@ def _slower_before(tracks: Tracks, k0: int) -> Tracks:
     return Tracks(px, valid, count, quality)
 
 
-def _cross_check(tracks: Tracks, colour: dict, methods: list[str]) -> tuple[Tracks, np.ndarray, np.ndarray]:
+def _travel(px: np.ndarray, valid: np.ndarray, k0: int, direction: np.ndarray) -> tuple[float, float]:
+    """(farthest downhill, farthest uphill) travel in px of a track along ``direction`` from
+    its pixel in frame ``k0``, over its valid frames."""
+    if not valid.any() or not np.all(np.isfinite(px[k0])):
+        return 0.0, 0.0
+    along = (px[valid] - px[k0]) @ direction
+    return float(max(along.max(), 0.0)), float(max(-along.min(), 0.0))
+
+
+def _follows_a_hand(klt_track, colour_track, k0: int, direction: np.ndarray) -> bool:
+    """The KLT track goes up the ramp more than down it (its features were on a hand that
+    let go and moved away) while the colour track goes down it (at least 3 px, and twice
+    as far as up): the object was released and slid, so the colour track is the
+    object's. Tracks are ``(pixels (N, 2), valid (N,))``."""
+    down_k, up_k = _travel(*klt_track, k0, direction)
+    down_c, up_c = _travel(*colour_track, k0, direction)
+    return up_k > down_k and down_c > max(3.0, 2.0 * up_c)
+
+
+def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=None, k0: int = 0
+                 ) -> tuple[Tracks, np.ndarray, np.ndarray]:
     """Compare each KLT-tracked object with its colour track where both measured well
     (colour quality >= 0.9), after removing their median offset (the two methods may take
     slightly different points of the object as its centre; the motion is what must agree).
+
+    First, with ``directions`` ((n,) unit image vectors down each object's path) and the
+    frame ``k0`` in which the objects rest: a KLT track that goes up the path while the
+    colour track goes down it (:func:`_follows_a_hand`) is replaced by the colour track.
 
     Where they agree in general (median distance at most :data:`CROSS_CHECK_AGREE_PX`): if
     the colour track is the steadier of the two (its noise SD from third differences,
@@ -261,6 +344,10 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str]) -> tuple[Trac
         if methods[i] != "features" or i not in colour:
             continue
         px_c, valid_c, q_c = colour[i][:3]
+        if directions is not None and _follows_a_hand((px[:, i], valid[:, i]), (px_c, valid_c), k0, directions[i]):
+            methods[i] = "colour"
+            px[:, i], valid[:, i], count[:, i], quality[:, i] = px_c, valid_c, valid_c.astype(int), q_c
+            continue
         both = valid[:, i] & (q_c >= 0.9)
         if both.sum() < 8:
             continue

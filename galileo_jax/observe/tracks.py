@@ -69,7 +69,11 @@ def window_corners(centre, window: Window, R: np.ndarray | None = None, shrink: 
 
 
 def polygon_mask(shape, corners: np.ndarray, offset=(0, 0)) -> np.ndarray:
+    """(h, w) uint8 mask, 255 inside the convex polygon ``corners`` (m, 2) px (sub-pixel, in an
+    array whose pixel (0, 0) is ``offset``); empty where the corners are not finite."""
     mask = np.zeros(shape[:2], np.uint8)
+    if not np.all(np.isfinite(corners)):
+        return mask
     pts = np.round((corners - np.asarray(offset)) * 4).astype(np.int32)
     cv2.fillConvexPoly(mask, pts, 255, lineType=cv2.LINE_8, shift=2)
     return mask
