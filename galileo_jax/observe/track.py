@@ -297,7 +297,7 @@ def _slower_before(tracks: Tracks, k0: int) -> Tracks:
     return Tracks(px, valid, count, quality)
 
 
-def _travel(px: np.ndarray, valid: np.ndarray, k0: int, direction: np.ndarray) -> tuple[float, float]:
+def _reach_along(px: np.ndarray, valid: np.ndarray, k0: int, direction: np.ndarray) -> tuple[float, float]:
     """(farthest downhill, farthest uphill) travel in px of a track along ``direction`` from
     its pixel in frame ``k0``, over its valid frames."""
     if not valid.any() or not np.all(np.isfinite(px[k0])):
@@ -311,8 +311,8 @@ def _follows_a_hand(klt_track, colour_track, k0: int, direction: np.ndarray) -> 
     let go and moved away) while the colour track goes down it (at least 3 px, and twice
     as far as up): the object was released and slid, so the colour track is the
     object's. Tracks are ``(pixels (N, 2), valid (N,))``."""
-    down_k, up_k = _travel(*klt_track, k0, direction)
-    down_c, up_c = _travel(*colour_track, k0, direction)
+    down_k, up_k = _reach_along(*klt_track, k0, direction)
+    down_c, up_c = _reach_along(*colour_track, k0, direction)
     return up_k > down_k and down_c > max(3.0, 2.0 * up_c)
 
 
@@ -340,13 +340,17 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
     n = tracks.pixels.shape[1]
     agree, dropped = np.full(n, np.nan), np.zeros(n, int)
     px, valid, count, quality = (np.array(f, copy=True) for f in tracks)
+
+    def take_colour(i, px_c, valid_c, q_c):
+        methods[i] = "colour"
+        px[:, i], valid[:, i], count[:, i], quality[:, i] = px_c, valid_c, valid_c.astype(int), q_c
+
     for i in range(n):
         if methods[i] != "features" or i not in colour:
             continue
         px_c, valid_c, q_c = colour[i][:3]
         if directions is not None and _follows_a_hand((px[:, i], valid[:, i]), (px_c, valid_c), k0, directions[i]):
-            methods[i] = "colour"
-            px[:, i], valid[:, i], count[:, i], quality[:, i] = px_c, valid_c, valid_c.astype(int), q_c
+            take_colour(i, px_c, valid_c, q_c)
             continue
         both = valid[:, i] & (q_c >= 0.9)
         if both.sum() < 8:
@@ -359,8 +363,7 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
         sd_klt = max(estimate_noise_sd(px[both, i, j]) for j in range(2))
         sd_col = max(estimate_noise_sd(px_c[both, j]) for j in range(2))
         if sd_col < STEADIER * sd_klt:
-            methods[i] = "colour"
-            px[:, i], valid[:, i], count[:, i], quality[:, i] = px_c, valid_c, valid_c.astype(int), q_c
+            take_colour(i, px_c, valid_c, q_c)
             continue
         bad = both & (d > CROSS_CHECK_PX)
         dropped[i] = int(bad.sum())
