@@ -76,16 +76,20 @@ def main(argv=None) -> int:
     ap.add_argument("--work", type=Path, default=RESULTS / "fit_world")
     ap.add_argument("--rerun", action="store_true", help="fit again videos that have a record")
     ap.add_argument("--config", type=Path, help="fit settings (as fit --config); records go to --work/<config stem>/")
+    ap.add_argument("--look", choices=("plain", "checker"), default="plain",
+                    help="the cubes' look; checker renders the same scenes, camera and physics with a texture "
+                         "(results to fit_world_checker), which separates what tracking loses from what the "
+                         "videos cannot tell")
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
     from scaling import machine_line
 
     args.work.mkdir(parents=True, exist_ok=True)
-    condition = Condition("plain", "perspective", "960x540", False)
+    condition = Condition(args.look, "perspective", "960x540", False)
     records = []
     for j in tqdm(range(args.videos), desc="fit benchmark", unit="video"):
-        video = args.work / f"plain_persp_{j}.mp4"
+        video = args.work / f"{args.look}_persp_{j}.mp4"
         render_world(video, condition, hand=j % 2 == 0, seed=5000 + j)
         if args.config is None:
             records.append(cached_record(video, fit_one, args.rerun))
@@ -102,7 +106,7 @@ def main(argv=None) -> int:
             "| methods | dropped | time (s) |", "|" + "---|" * 10]
     for r in records:
         if "error" in r:
-            rows.append(f"| {r['video']} | {r['hand']} | failed: {r['error'][:120]} |" + " |" * 7)
+            rows.append(f"| {r['video']} | {'yes' if r['hand'] else 'no'} | failed: {r['error'][:120]} |" + " |" * 7)
             continue
         cov = ", ".join("yes" if r[n]["covered"] else "no" for n in NAMES)
         methods = "/".join(o["method"] for o in r["tracking"]["objects"])
@@ -115,9 +119,10 @@ def main(argv=None) -> int:
                    "goal": GOAL[n]} for n in NAMES}
     doc = {"machine": machine_line(), "command": "python benchmarks/fit_world.py " + " ".join(argv or sys.argv[1:]),
            "videos": len(records), "fitted": len(ok), "summary": summary, "records": records}
-    name = "fit_world" if args.config is None else f"fit_world_{args.config.stem}"
+    name = "fit_world" + ("" if args.look == "plain" else f"_{args.look}") + (
+        "" if args.config is None else f"_{args.config.stem}")
     (RESULTS / f"{name}.json").write_text(json.dumps(doc, indent=1))
-    lines = ["# Fit accuracy on plain objects seen through a perspective camera", "",
+    lines = [f"# Fit accuracy on {args.look} objects seen through a perspective camera", "",
              f"machine: {doc['machine']}", "", f"command: `{doc['command']}`", "",
              " ".join(__doc__.split("\n\n")[1].split()), "", " ".join(__doc__.split("\n\n")[2].split()), "",
              f"{len(ok)} of {len(records)} videos fitted. Median |error| (goal) and 90% interval coverage:", "",

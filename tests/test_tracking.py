@@ -246,3 +246,72 @@ def test_klt_track_on_a_hand_gives_way_to_the_colour_track():
         out, _, _ = _cross_check(tr, colour, methods, [down], 5)
         assert methods == [expected]
         np.testing.assert_allclose(out.pixels[:, 0], slide if expected == "colour" else klt)
+
+
+def test_klt_track_caught_by_the_other_object_gives_way_to_the_colour_track():
+    """Two cubes with the same texture collide; KLT's features of object 1 move onto object 2
+    and follow it from then on (a track inside another object, which no rigid pair can do): the
+    colour track of object 1, which stays behind object 2, replaces it. Where the colour track
+    overlaps too, only the impossible frames are dropped."""
+    from galileo_jax.observe.track import _cross_check, _pair_gaps
+    from galileo_jax.observe.tracks import Tracks, Window
+
+    N, hit = 40, 20
+    t = np.arange(N, dtype=float)
+    x1 = 100.0 + np.where(t < hit, 3.0 * t, 3.0 * hit + 0.5 * (t - hit))  # slows down at the hit
+    x2 = np.where(t < hit, 190.0, 190.0 + 2.5 * (t - hit))  # pushed on from the hit, 30 px ahead
+    obj1, obj2 = (np.stack([x, np.full(N, 200.0)], axis=1) for x in (x1, x2))
+    klt1 = obj1.copy()
+    klt1[hit:] = obj2[hit:] - [3.0, 0.0]  # features caught by object 2
+    ones = np.ones(N, bool)
+    wins = [Window((15.0, 15.0), 0.0)] * 2
+    gaps = _pair_gaps(wins)
+    assert gaps[0, 1] == pytest.approx(15.0)
+    colour = {0: (obj1, ones, np.ones(N), -1, 0), 1: (obj2, ones, np.ones(N), -1, 0)}
+    methods = ["features", "colour"]
+    tr = Tracks(np.stack([klt1, obj2], axis=1), np.stack([ones, ones], axis=1), np.full((N, 2), 20), np.ones((N, 2)))
+    out, _, _ = _cross_check(tr, colour, methods, None, 0, gaps)
+    assert methods == ["colour", "colour"]
+    np.testing.assert_allclose(out.pixels[:, 0], obj1)
+    # the colour track overlaps as well (both caught): KLT stays, its impossible frames go
+    colour_bad = {0: (klt1.copy(), ones, np.ones(N), -1, 0), 1: colour[1]}
+    methods = ["features", "colour"]
+    out, _, dropped = _cross_check(tr, colour_bad, methods, None, 0, gaps)
+    assert methods == ["features", "colour"] and dropped[0] == N - hit
+    assert out.valid[:hit, 0].all() and not out.valid[hit:, 0].any()
+
+
+def test_cross_check_forgives_an_offset_that_drifts_with_the_position():
+    """Through a perspective camera KLT (front face) and the colour matte (silhouette) measure
+    points of the object whose image offset changes smoothly across the image (here 0 to 4 px
+    over 300 px of travel): not a disagreement, so no frame is dropped; a 3 px jump is."""
+    from galileo_jax.observe.track import _cross_check
+    from galileo_jax.observe.tracks import Tracks
+
+    N = 50
+    t = np.arange(N, dtype=float)
+    rng = np.random.default_rng(3)
+    true = np.stack([100.0 + 0.12 * t ** 2, 150.0 + 0.03 * t ** 2], axis=1)
+    colour_px = true + rng.normal(0, 0.15, true.shape)
+    drift = (true[:, :1] - 100.0) / 300.0 * np.array([4.0, -1.0])
+    klt = true + drift + rng.normal(0, 0.1, true.shape)
+    klt[30:33] += [3.0, 0.0]  # a jump the drift does not explain
+    ones = np.ones(N, bool)
+    colour = {0: (colour_px, ones, np.ones(N), -1, 0)}
+    methods = ["features"]
+    tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    out, agree, dropped = _cross_check(tr, colour, methods, None, 0)
+    assert methods == ["features"] and agree[0] < 0.5
+    assert dropped[0] == 3 and not out.valid[30:33, 0].any() and out.valid[:30, 0].all() and out.valid[33:, 0].all()
+
+
+def test_release_time_found_through_dropped_frames():
+    """A track with every third frame not measured (NaN) still gives the release where the
+    object starts to slide, not where the first four measured frames in a row happen to be."""
+    from galileo_jax.observe.profile import estimate_release_time
+
+    fps, t_r = 30.0, 0.3
+    t = np.arange(60) / fps
+    s = 0.5 * 400.0 * np.clip(t - t_r, 0, None) ** 2
+    s[1::3] = np.nan
+    assert estimate_release_time(s, fps, 0.3) == pytest.approx(t_r, abs=0.01)

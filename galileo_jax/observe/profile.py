@@ -46,11 +46,15 @@ def _moving_frames(px: np.ndarray, valid: np.ndarray, threshold: float) -> np.nd
 
 
 def _onset(s: np.ndarray, threshold: float, run: int = 3) -> int | None:
-    """First frame k with s[k..k+run] all above ``threshold`` and not decreasing much."""
-    above = s > threshold
-    for k in range(len(s) - run):
-        if above[k: k + run + 1].all() and np.all(np.diff(s[k: k + run + 1]) > -threshold):
-            return k
+    """First frame k with s above ``threshold`` and not decreasing much in it and the next
+    ``run`` measured frames. Frames not measured (NaN) are skipped, not counted as at rest: a
+    track with every third frame dropped still starts where the object starts."""
+    idx = np.flatnonzero(np.isfinite(s))
+    m = s[idx]
+    above = m > threshold
+    for j in range(len(m) - run):
+        if above[j: j + run + 1].all() and np.all(np.diff(m[j: j + run + 1]) > -threshold):
+            return int(idx[j])
     return None
 
 

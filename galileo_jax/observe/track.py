@@ -188,7 +188,8 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
         parts.update({i: tuple(f[:, j] for f in tr) for j, i in enumerate(circ)})
     tracks = Tracks(*(np.stack([parts[i][m] for i in range(n)], axis=1) for m in range(4)))
     downhill = [path_direction(scene, calib, i) for i in range(n)]
-    tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame)  # may switch to "colour"
+    tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame,  # may switch to "colour"
+                                          _pair_gaps(wins))
     cut = [i for i in range(n) if methods[i] != "outline"]
     return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
 
@@ -316,15 +317,62 @@ def _follows_a_hand(klt_track, colour_track, k0: int, direction: np.ndarray) -> 
     return up_k > down_k and down_c > max(3.0, 2.0 * up_c)
 
 
-def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=None, k0: int = 0
+def _overlaps(px: np.ndarray, valid: np.ndarray, others: list, gaps: list) -> np.ndarray:
+    """(N,) frames in which a track's centre comes closer to another object's centre than
+    that pair's ``gap`` (px): two rigid objects cannot sit inside each other, so the track
+    has caught the other object (KLT features of one checkered cube moving onto the other
+    at their collision). ``others``: the other objects' ``(pixels (N, 2), valid (N,))``."""
+    out = np.zeros(len(px), bool)
+    for (px_j, valid_j), gap in zip(others, gaps):
+        both = valid & valid_j
+        if both.any():
+            out[both] |= np.linalg.norm(px[both] - px_j[both], axis=-1) < gap
+    return out
+
+
+def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> np.ndarray:
+    """(N,) distance (px) between two tracks of one object after removing the offset between
+    the points they measure, modelled as affine in the image position (fitted over ``both``,
+    twice, the second time without the frames more than 3 robust SDs off): the two methods
+    see different points of the object (KLT the features of its textured front face, the
+    colour matte the centre of its silhouette, which with a perspective camera also shows a
+    top or side face whose share changes across the image), so their offset drifts smoothly
+    with the position, by several px over a wide view; a jump is what a caught feature or a
+    lost matte looks like."""
+    diff = px_a - px_b
+    pos = px_a[both]
+    centre = pos.mean(axis=0)
+    # slopes along the principal axes of the path that it spans (> 10 px SD): along a straight
+    # path the other axis would let the offset model absorb any jump off the line
+    _, sv, axes = np.linalg.svd(pos - centre, full_matrices=False)
+    spread = sv / np.sqrt(len(pos))
+    keep = spread > 10.0
+    design = np.concatenate([np.ones((len(px_a), 1)), (px_a - centre) @ axes[keep].T / spread[keep]], axis=1)
+    use = both.copy()
+    resid = np.full(len(px_a), np.inf)
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(design[use], diff[use], rcond=None)
+        fit = design @ coef
+        resid = np.linalg.norm(diff - fit, axis=-1)
+        scale = max(1.4826 * float(np.median(resid[both])), 0.2)
+        use = both & (resid <= 3.0 * scale)
+        if use.sum() < 8:
+            break
+    return np.where(np.isfinite(resid), resid, np.inf)
+
+
+def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=None, k0: int = 0, gaps=None
                  ) -> tuple[Tracks, np.ndarray, np.ndarray]:
     """Compare each KLT-tracked object with its colour track where both measured well
-    (colour quality >= 0.9), after removing their median offset (the two methods may take
-    slightly different points of the object as its centre; the motion is what must agree).
+    (colour quality >= 0.9), after removing the offset between the points the two measure
+    (:func:`_offset_residuals`: affine in the image position; the motion is what must agree).
 
     First, with ``directions`` ((n,) unit image vectors down each object's path) and the
     frame ``k0`` in which the objects rest: a KLT track that goes up the path while the
     colour track goes down it (:func:`_follows_a_hand`) is replaced by the colour track.
+    With ``gaps`` ((n, n) px; :func:`_pair_gaps`): a KLT track that sits inside another
+    object (:func:`_overlaps`; its features moved onto the other object at a collision) is
+    replaced by the colour track if that one never does, else those frames are dropped.
 
     Where they agree in general (median distance at most :data:`CROSS_CHECK_AGREE_PX`): if
     the colour track is the steadier of the two (its noise SD from third differences,
@@ -345,6 +393,11 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
         methods[i] = "colour"
         px[:, i], valid[:, i], count[:, i], quality[:, i] = px_c, valid_c, valid_c.astype(int), q_c
 
+    def others(i):  # the other objects, by their colour tracks where they have one
+        js = [j for j in range(n) if j != i]
+        return ([(colour[j][0], colour[j][1]) if j in colour else (px[:, j], valid[:, j]) for j in js],
+                [gaps[i][j] for j in js])
+
     for i in range(n):
         if methods[i] != "features" or i not in colour:
             continue
@@ -352,11 +405,18 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
         if directions is not None and _follows_a_hand((px[:, i], valid[:, i]), (px_c, valid_c), k0, directions[i]):
             take_colour(i, px_c, valid_c, q_c)
             continue
+        if gaps is not None and n > 1:
+            inside = _overlaps(px[:, i], valid[:, i], *others(i))
+            if inside.any():
+                if not _overlaps(px_c, valid_c, *others(i)).any():
+                    take_colour(i, px_c, valid_c, q_c)
+                    continue
+                dropped[i] += int(inside.sum())
+                valid[inside, i], quality[inside, i] = False, 0.0
         both = valid[:, i] & (q_c >= 0.9)
         if both.sum() < 8:
             continue
-        diff = px[:, i] - px_c
-        d = np.linalg.norm(diff - np.median(diff[both], axis=0), axis=-1)  # the two may centre differently
+        d = _offset_residuals(px[:, i], px_c, both)
         agree[i] = float(np.median(d[both]))
         if agree[i] > CROSS_CHECK_AGREE_PX:  # they disagree everywhere: the colour track is the suspect one
             continue
@@ -366,6 +426,13 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
             take_colour(i, px_c, valid_c, q_c)
             continue
         bad = both & (d > CROSS_CHECK_PX)
-        dropped[i] = int(bad.sum())
+        dropped[i] += int(bad.sum())
         valid[bad, i], quality[bad, i] = False, 0.0
     return Tracks(px, valid, count, quality), agree, dropped
+
+
+def _pair_gaps(wins) -> np.ndarray:
+    """(n, n) px: centres of two objects closer than half their touching distance along the
+    path (half the sum of their half lengths) mean one track sits inside the other object."""
+    half = np.array([float(w.half[0]) for w in wins])
+    return 0.5 * (half[:, None] + half[None, :])
