@@ -19,7 +19,7 @@ class TrackingInfo(NamedTuple):
         methods: per object "features" (KLT), "colour" (colour matte) or "outline".
         quality: (N, n_objects) quality in [0, 1] of each frame's measurement (0: none).
         measured: (N, n_objects) bool, frames whose measurement is used (quality at least
-            :data:`galileo_jax.observe.profile.QUALITY_MIN`); the others are left out of the fit.
+            :data:`galileo_jax.observe.tracks.QUALITY_MIN`); the others are left out of the fit.
         start_frame: frame in which the objects were found at rest and tracking started.
         cross_check_px: (n_objects,) median distance (px) between an object's KLT track and
             its colour track (NaN where only one method followed it).

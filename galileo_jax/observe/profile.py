@@ -22,7 +22,7 @@ from galileo_jax.model import object_start_pose
 from galileo_jax.observation import Observation, TrackingInfo, profile_from_positions
 from galileo_jax.observe.find import locate_objects, never_moves_error
 from galileo_jax.observe.track import SceneTracks, track_scene
-from galileo_jax.observe.tracks import Tracks, background_model, estimate_noise_sd, path_direction
+from galileo_jax.observe.tracks import QUALITY_MIN, Tracks, background_model, estimate_noise_sd, path_direction
 from galileo_jax.observe.video import VideoClip, read_video
 from galileo_jax.scene import Scene
 
@@ -31,10 +31,6 @@ from galileo_jax.scene import Scene
 NOISE_FLOOR_PX = 0.02
 #: Samples dropped before the release (frames), when the scene gives no fit window.
 PRE_RELEASE_FRAMES = 2
-#: Measurements of lower quality (:class:`~galileo_jax.observe.tracks.Tracks`) are left out
-#: of the fit: half of a clean measurement's agreement (half the object seen, or 4 of 8
-#: KLT features).
-QUALITY_MIN = 0.5
 
 
 def _moving_frames(px: np.ndarray, valid: np.ndarray, threshold: float) -> np.ndarray:

@@ -31,8 +31,8 @@ from galileo_jax.errors import TrackingError
 from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import footprint, track_matte
 from galileo_jax.observe.outline import track_circles
-from galileo_jax.observe.tracks import (Tracks, Window, as_gray, estimate_noise_sd, object_windows, path_direction,
-                                        window_corners)
+from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, object_windows,
+                                        path_direction, window_corners)
 from galileo_jax.scene import Scene
 
 #: Frames in which a KLT track and the colour track of the same object disagree by more than
@@ -41,6 +41,10 @@ CROSS_CHECK_PX = 2.0
 #: ... when the two agree in general (median distance at most this, px); where they do not,
 #: the colour model does not fit the textured object, and KLT is kept as it is.
 CROSS_CHECK_AGREE_PX = 1.0
+#: Frames in which a KLT track sits inside another object before the colour track replaces it
+#: (features caught by a look-alike stay on it; a frame or two, e.g. the other object's track
+#: at the image border, are dropped instead).
+CAUGHT_FRAMES = 3
 #: A colour track whose noise SD is under this fraction of the KLT track's replaces it.
 STEADIER = 0.8
 #: Smallest eigenvalue of the structure tensor (``cv2.cornerMinEigenVal``, block 5, on 8-bit
@@ -372,7 +376,8 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
     colour track goes down it (:func:`_follows_a_hand`) is replaced by the colour track.
     With ``gaps`` ((n, n) px; :func:`_pair_gaps`): a KLT track that sits inside another
     object (:func:`_overlaps`; its features moved onto the other object at a collision) is
-    replaced by the colour track if that one never does, else those frames are dropped.
+    replaced by the colour track if that one never does and the KLT track does in at least
+    :data:`CAUGHT_FRAMES` frames; else those frames are dropped.
 
     Where they agree in general (median distance at most :data:`CROSS_CHECK_AGREE_PX`): if
     the colour track is the steadier of the two (its noise SD from third differences,
@@ -393,9 +398,10 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
         methods[i] = "colour"
         px[:, i], valid[:, i], count[:, i], quality[:, i] = px_c, valid_c, valid_c.astype(int), q_c
 
-    def others(i):  # the other objects, by their colour tracks where they have one
+    def others(i):  # the other objects where measured well, by their colour tracks where they have one
         js = [j for j in range(n) if j != i]
-        return ([(colour[j][0], colour[j][1]) if j in colour else (px[:, j], valid[:, j]) for j in js],
+        return ([(colour[j][0], colour[j][1] & (colour[j][2] >= QUALITY_MIN)) if j in colour
+                 else (px[:, j], valid[:, j] & (quality[:, j] >= QUALITY_MIN)) for j in js],
                 [gaps[i][j] for j in js])
 
     for i in range(n):
@@ -408,7 +414,7 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
         if gaps is not None and n > 1:
             inside = _overlaps(px[:, i], valid[:, i], *others(i))
             if inside.any():
-                if not _overlaps(px_c, valid_c, *others(i)).any():
+                if inside.sum() >= CAUGHT_FRAMES and not _overlaps(px_c, valid_c & (q_c >= QUALITY_MIN), *others(i)).any():
                     take_colour(i, px_c, valid_c, q_c)
                     continue
                 dropped[i] += int(inside.sum())

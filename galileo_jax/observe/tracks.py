@@ -44,6 +44,12 @@ class Tracks(NamedTuple):
     quality: np.ndarray
 
 
+#: Measurements of lower quality (:class:`Tracks`) are left out of the fit and of the
+#: cross-checks: half of a clean measurement's agreement (half the object seen, or 4 of 8 KLT
+#: features).
+QUALITY_MIN = 0.5
+
+
 class Window(NamedTuple):
     """An object's image footprint: a rectangle of half sizes (along, across) in px whose
     'along' axis is at ``angle`` rad from the image u axis (towards +v)."""
