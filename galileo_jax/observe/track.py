@@ -353,7 +353,6 @@ def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> n
     keep = spread > 10.0
     design = np.concatenate([np.ones((len(px_a), 1)), (px_a - centre) @ axes[keep].T / spread[keep]], axis=1)
     use = both.copy()
-    resid = np.full(len(px_a), np.inf)
     for _ in range(2):
         coef, *_ = np.linalg.lstsq(design[use], diff[use], rcond=None)
         fit = design @ coef
@@ -412,9 +411,10 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
             take_colour(i, px_c, valid_c, q_c)
             continue
         if gaps is not None and n > 1:
-            inside = _overlaps(px[:, i], valid[:, i], *others(i))
+            around = others(i)
+            inside = _overlaps(px[:, i], valid[:, i], *around)
             if inside.any():
-                if inside.sum() >= CAUGHT_FRAMES and not _overlaps(px_c, valid_c & (q_c >= QUALITY_MIN), *others(i)).any():
+                if inside.sum() >= CAUGHT_FRAMES and not _overlaps(px_c, valid_c & (q_c >= QUALITY_MIN), *around).any():
                     take_colour(i, px_c, valid_c, q_c)
                     continue
                 dropped[i] += int(inside.sum())
