@@ -32,12 +32,15 @@ class TrackingError(GalileoError):
 
     ``object_index`` is the 0-based index (within the tracked group) of the object concerned,
     or None; ``at_start`` is True when the tracker could not start on it at all (too few
-    features, no colour of its own), False when it lost it later."""
+    features, no colour of its own), False when it lost it later; ``frame`` the video frame at
+    which it was lost, where the tracker knows it (else None)."""
 
-    def __init__(self, message: str, object_index: int | None = None, at_start: bool = False):
+    def __init__(self, message: str, object_index: int | None = None, at_start: bool = False,
+                 frame: int | None = None):
         super().__init__(message)
         self.object_index = object_index
         self.at_start = at_start
+        self.frame = frame
 
 
 def cli_entry(main: Callable[[list[str] | None], int]) -> Callable[[list[str] | None], int]:

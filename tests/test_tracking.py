@@ -305,6 +305,82 @@ def test_cross_check_forgives_an_offset_that_drifts_with_the_position():
     assert dropped[0] == 3 and not out.valid[30:33, 0].any() and out.valid[:30, 0].all() and out.valid[33:, 0].all()
 
 
+def test_cross_check_drops_a_klt_track_stuck_on_the_scenery():
+    """KLT features that stay behind on the scenery while the object slides on (blurred
+    checker) leave a long stretch hundreds of px off the colour track: the offset model is
+    fitted on the frames that agree, so the two are found to agree there and exactly the
+    stuck frames are dropped (a least-squares start had called the whole pair a disagreement
+    and kept the stuck track)."""
+    from galileo_jax.observe.track import _cross_check
+    from galileo_jax.observe.tracks import Tracks
+
+    N = 60
+    t = np.arange(N, dtype=float)
+    rng = np.random.default_rng(5)
+    true = np.stack([800.0 - 0.3 * t ** 2, 200.0 + 0.06 * t ** 2], axis=1)
+    colour_px = true + rng.normal(0, 0.15, true.shape)
+    klt = true + rng.normal(0, 0.1, true.shape)
+    klt[40:] = klt[40]  # stuck from frame 40 on
+    ones = np.ones(N, bool)
+    colour = {0: (colour_px, ones, np.ones(N), -1, 0)}
+    methods = ["features"]
+    tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    out, agree, dropped = _cross_check(tr, colour, methods, None, 0)
+    assert agree[0] < 0.5
+    moved = np.linalg.norm(true[41:] - true[40], axis=-1) > 2.0
+    assert out.valid[:40, 0].all() and not out.valid[41:, 0][moved].any()
+
+
+def test_auto_falls_back_to_a_colour_track_that_lasts_longer(monkeypatch):
+    """``tracker: auto``: where KLT loses an object at frame 20 and the colour tracker only at
+    frame 40, the colour track stands in (measured up to 40, not after); where the colour
+    tracker lost it first, KLT's error is raised with the object's number."""
+    import galileo_jax.observe.track as track
+    from galileo_jax.calibration import calibration
+    from galileo_jax.errors import TrackingError
+
+    scene = _scene()
+    N = 50
+    px = np.stack([np.linspace(100.0, 300.0, N), np.full(N, 120.0)], axis=1)
+    frames = np.zeros((N, 270, 480, 3), np.uint8)
+
+    def colour_tracks(frames, start, wins, methods, start_frame, fps, lost_at=40):
+        valid = np.arange(N) < lost_at
+        return {i: (px + 60 * i, valid, valid.astype(float), lost_at, 0) for i in range(2)}
+
+    def klt_lost(frames, start, windows, **kw):
+        raise TrackingError("object 1 track lost at frame 20: only 0 features still follow it", object_index=0,
+                            frame=20)
+
+    monkeypatch.setattr(track, "_colour_tracks", colour_tracks)
+    monkeypatch.setattr(track, "track_objects", klt_lost)
+    monkeypatch.setattr(track, "has_texture", lambda *a: True)
+    calib = calibration(scene.camera)
+    out = track.track_scene(frames, np.stack([px[0], px[0] + 60]), scene, calib)
+    assert out.methods[0] == "colour" and out.tracks.valid[:40, 0].all() and not out.tracks.valid[40:, 0].any()
+    monkeypatch.setattr(track, "_colour_tracks", lambda *a: colour_tracks(*a, lost_at=10))
+    with pytest.raises(TrackingError, match="object 1 track lost at frame 20"):
+        track.track_scene(frames, np.stack([px[0], px[0] + 60]), scene, calib)
+
+
+def test_silhouette_found_near_a_rough_guess():
+    """The motion detector's guess at a small plain object in motion can be more than half
+    an object off: by default no silhouette is taken that far away (None); with a ``reach``
+    the nearest region of the object's size is, and its centroid is the object's centre."""
+    from galileo_jax.observe.find import silhouette_centre
+    from galileo_jax.observe.tracks import Window
+
+    bg = np.full((120, 160, 3), (120, 130, 140), np.uint8)
+    frame = bg.copy()
+    frame[50:63, 70:83] = (40, 200, 220)  # a 13 px square centred on (76, 56)
+    frame[20:24, 120:124] = (40, 200, 220)  # a speck, far too small
+    window = Window((6.5, 6.5), 0.0)
+    rough = np.array([76.0 + 15.0, 56.0 + 8.0])  # 17 px off
+    assert silhouette_centre(frame[None], bg, rough, window) is None
+    found = silhouette_centre(frame[None], bg, rough, window, reach=2.0 * math.hypot(*window.half))
+    assert found is not None and np.allclose(found, [76.0, 56.0], atol=0.05)
+
+
 def test_release_time_found_through_dropped_frames():
     """A track with every third frame not measured (NaN) still gives the release where the
     object starts to slide, not where the first four measured frames in a row happen to be."""

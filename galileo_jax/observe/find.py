@@ -216,7 +216,8 @@ def _crop_radius(window: Window) -> int:
     return int(2 * max(window.half) + 10)
 
 
-def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Window) -> np.ndarray | None:
+def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Window, reach: float | None = None
+                      ) -> np.ndarray | None:
     """Centre (px) of a resting object's silhouette, by background subtraction.
 
     Args:
@@ -224,15 +225,19 @@ def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Wi
         background: (H, W, 3) the same view without the object.
         rough: (2,) approximate centre (px), inside the object.
         window: its expected footprint (for the search region and a size check).
+        reach: how far (px) outside a region ``rough`` may lie (default half the footprint's
+            smaller half size); of several regions the nearest is taken.
 
     Returns:
         The centroid of the filled region that differs from the background in every frame
         of ``pre`` and does not change between them (so a hand moving over it is left
-        out), or None if no region of plausible size contains ``rough``.
+        out), or None if no region of plausible size contains ``rough`` (or lies within
+        ``reach`` of it).
     """
     if not np.all(np.isfinite(rough)):  # a track that lost the object there
         return None
-    lo, hi = _roi_box(background.shape[:2], rough, _crop_radius(window))
+    radius = _crop_radius(window) + (0 if reach is None else int(math.ceil(reach)))  # the object well inside
+    lo, hi = _roi_box(background.shape[:2], rough, radius)
     if np.any(hi - lo < 3):  # ``rough`` outside the image: nothing to see (and OpenCV asserts on empty arrays)
         return None
     crop = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
@@ -247,13 +252,15 @@ def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Wi
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     expected = 4 * window.half[0] * window.half[1]
     here = np.asarray(rough, float) - lo
-    best = None
+    best, best_key = None, None
     for c in contours:
         area = cv2.contourArea(c)
         dist = cv2.pointPolygonTest(c, (float(here[0]), float(here[1])), True)
-        if 0.4 * expected <= area <= 2.5 * expected and dist > -0.5 * min(window.half):
-            if best is None or area > cv2.contourArea(best):
-                best = c
+        if 0.4 * expected <= area <= 2.5 * expected and dist > -(0.5 * min(window.half) if reach is None else reach):
+            # the largest; with a ``reach``, the nearest (of those containing ``rough``, the largest)
+            key = (0.0 if reach is None else min(dist, 0.0), area)
+            if best is None or key > best_key:
+                best, best_key = c, key
     if best is None:
         return None
     filled = np.zeros(mask.shape, np.uint8)
@@ -276,7 +283,10 @@ def _centre_in_motion(frames, k: int, rough, window: Window, k_start: int, k1: i
         return None
     idx = np.asarray(idx)[np.unique(np.linspace(0, len(idx) - 1, min(n, len(idx))).round().astype(int))]
     background = np.median(frames[idx], axis=0).astype(np.uint8)
-    return silhouette_centre(frames[k:k + 1], background, rough, window)
+    found = silhouette_centre(frames[k:k + 1], background, rough, window)
+    if found is None:  # the flow can be more than half an object off (a small plain object)
+        found = silhouette_centre(frames[k:k + 1], background, rough, window, reach=2.0 * math.hypot(*window.half))
+    return found
 
 
 def _off_path(disp: np.ndarray, k_from: int, direction: np.ndarray, n: int = 15) -> float:

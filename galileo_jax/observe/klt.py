@@ -462,11 +462,11 @@ def _advance(i, k, tr: _Track, tracks, f0: _Frame, f1: _Frame, prm: _Params, fps
         stopped = speed < 0.5 and (was_fast or tr.strikes > 0)
         tr.strikes = tr.strikes + 1 if stopped and _on_background(f1.gray, tr, prm) else 0
         if tr.strikes >= 2:
-            raise TrackingError(_stuck_message(i, k, fps), object_index=i)
+            raise TrackingError(_stuck_message(i, k, fps), object_index=i, frame=k)
         return n
     if inside_fraction(tr.corners(t=tr.t + tr.velocity), f1.gray.shape) < 0.75:
         tr.alive = False
         return 0
-    raise TrackingError(lost_message(i, k, fps, n), object_index=i)
+    raise TrackingError(lost_message(i, k, fps, n), object_index=i, frame=k)
 
 

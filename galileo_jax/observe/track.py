@@ -170,9 +170,11 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
             j = getattr(err, "object_index", None)
             i = None if j is None else klt[j]
             # the colour track stands in where KLT cannot even start (a small or plain object),
-            # or where KLT lost the object but the colour tracker did not
+            # or where KLT lost the object and the colour tracker did not, or later (its frames
+            # from there on are not measured)
+            colour_lost = colour[i][3] if i in colour else -1
             if i is None or scene.objects[i].tracker != "auto" or i not in colour or \
-                    (colour[i][3] >= 0 and not err.at_start):
+                    (colour_lost >= 0 and not err.at_start and (err.frame is None or colour_lost <= err.frame)):
                 raise _in_scene(err, klt) from None
             methods[i] = "colour"
             klt.remove(i)
@@ -205,7 +207,7 @@ def _in_scene(err: TrackingError, ids: list[int]) -> TrackingError:
     if j is None or not 0 <= j < len(ids):
         return err
     return TrackingError(str(err).replace(f"object {j + 1}", f"object {ids[j] + 1}", 1), object_index=ids[j],
-                         at_start=err.at_start)
+                         at_start=err.at_start, frame=err.frame)
 
 
 def _inside_only(tracks: Tracks, wins, shape, objects) -> Tracks:
@@ -342,7 +344,8 @@ def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> n
     colour matte the centre of its silhouette, which with a perspective camera also shows a
     top or side face whose share changes across the image), so their offset drifts smoothly
     with the position, by several px over a wide view; a jump is what a caught feature or a
-    lost matte looks like."""
+    lost matte looks like. The first fit uses only the frames whose offset is near the median
+    offset (within 3 robust SDs, at least 3 px)."""
     diff = px_a - px_b
     pos = px_a[both]
     centre = pos.mean(axis=0)
@@ -352,7 +355,12 @@ def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> n
     spread = sv / np.sqrt(len(pos))
     keep = spread > 10.0
     design = np.concatenate([np.ones((len(px_a), 1)), (px_a - centre) @ axes[keep].T / spread[keep]], axis=1)
-    use = both.copy()
+    # start from the frames near the median offset: a least-squares start would be pulled by a
+    # long stretch of a stuck track (hundreds of px off) until most frames look off
+    resid = np.linalg.norm(diff - np.median(diff[both], axis=0), axis=-1)
+    use = both & (resid <= max(3.0 * 1.4826 * float(np.median(resid[both])), 3.0))
+    if use.sum() < 8:
+        use = both.copy()
     for _ in range(2):
         coef, *_ = np.linalg.lstsq(design[use], diff[use], rcond=None)
         fit = design @ coef
