@@ -113,7 +113,6 @@ def render_world(path: Path, condition: Condition, hand: bool, seed: int) -> dic
     motion = simulate_motion(scene, resolve_params(scene, params), FPS, rest_frames)
     scale = frame_view(scene, motion.positions, width, height).scale
     cube = float(np.clip(target_px / scale, 0.02, 0.15))
-    layout = world_scene(np.random.default_rng(seed), condition.size)
     for obj in layout["objects"]:
         obj["size"] = [cube] * 3
     layout["objects"][0]["start"] = round(layout["ramp"]["length"] - cube, 3)

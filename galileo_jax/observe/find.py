@@ -252,11 +252,12 @@ def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Wi
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     expected = 4 * window.half[0] * window.half[1]
     here = np.asarray(rough, float) - lo
+    limit = 0.5 * min(window.half) if reach is None else reach  # how far outside a region ``rough`` may be
     best, best_key = None, None
     for c in contours:
         area = cv2.contourArea(c)
         dist = cv2.pointPolygonTest(c, (float(here[0]), float(here[1])), True)
-        if 0.4 * expected <= area <= 2.5 * expected and dist > -(0.5 * min(window.half) if reach is None else reach):
+        if 0.4 * expected <= area <= 2.5 * expected and dist > -limit:
             # the largest; with a ``reach``, the nearest (of those containing ``rough``, the largest)
             key = (0.0 if reach is None else min(dist, 0.0), area)
             if best is None or key > best_key:

@@ -1019,8 +1019,6 @@ def _learn_looks(frames, bg: ColourBackground, px: np.ndarray, ks, half, angles:
             looks.append((px[k], learn_template(frames[k], bg, palette, px[k], half, angles[k])))
         except ValueError:
             continue
-    if not looks:
-        raise ValueError("no matte at the object's position")
     expected = 4.0 * half[0] * half[1]  # the footprint's area (a near face in perspective: up to half again)
     kept = [(p, lk) for p, lk in looks if 0.5 * expected <= lk.area <= 1.6 * expected]
     if not kept:

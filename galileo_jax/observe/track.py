@@ -167,7 +167,7 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
         try:
             tr = _both_ways(track_objects, frames, start[klt], [wins[i] for i in klt], **kw)
         except TrackingError as err:
-            j = getattr(err, "object_index", None)
+            j = err.object_index
             i = None if j is None else klt[j]
             # the colour track stands in where KLT cannot even start (a small or plain object),
             # or where KLT lost the object and the colour tracker did not, or later (its frames
@@ -256,7 +256,7 @@ def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_fr
             mt = track_matte(frames, start[group], [wins[i].half for i in group], [wins[i].angle for i in group],
                              start_frame=start_frame, fps=fps, on_loss="hold")
         except TrackingError as err:
-            j = getattr(err, "object_index", None)
+            j = err.object_index
             if j is None or methods[group[j]] != "auto":
                 raise
             group.pop(j)
