@@ -214,3 +214,29 @@ def test_cma_search_climbs_from_a_far_start_and_keeps_held_parameters(problem):
         cma_search(problem, np.array([1.5, 0.2, 0.0]))
     with pytest.raises(ValueError, match="popsize"):
         cma_search(problem, start, popsize=2)
+
+
+def test_diverse_best_keeps_a_start_in_each_region_best_first():
+    """``diverse_best``: the best screened point first, then the next best that lies at least
+    the separation away from every chosen one (release-time coordinates not compared); a
+    cluster of good points in one region gives one start, not all of them; too few distinct
+    regions are filled up with the best of the rest."""
+    from galileo_jax.inference.grad import diverse_best
+
+    lo, hi = np.array([0.0, 0.0, -1.0, -0.1]), np.array([1.0, 1.0, 1.0, 0.1])
+    kinds = ("friction", "friction", "phi", "release")
+    cand = np.array([[0.2, 0.70, 0.70, 0.0],    # 0: best, in the high-k2 region
+                     [0.2, 0.75, 0.72, 0.1],    # 1: second best, same region (release differs only)
+                     [0.2, 0.80, 0.75, -0.1],   # 2: same region
+                     [0.2, 0.10, 0.30, 0.0],    # 3: another region
+                     [0.2, 0.12, 0.32, 0.0],    # 4: next to 3
+                     [0.9, 0.50, -0.80, 0.0]])  # 5: a third region, worst
+    ll = np.array([-10.0, -11.0, -12.0, -13.0, -14.0, -30.0])
+    assert diverse_best(cand, ll, 3, lo, hi, kinds).tolist() == [0, 3, 5]
+    assert diverse_best(cand, ll, 4, lo, hi, kinds).tolist() == [0, 3, 5, 1]  # filled up with the best left
+    assert diverse_best(cand, ll, 2, lo, hi, kinds, separation=0.0).tolist() == [0, 1]  # plain ranking
+    ll_fail = ll.copy()
+    ll_fail[3] = -np.inf  # a failed rollout is chosen only when nothing else is left
+    assert diverse_best(cand, ll_fail, 3, lo, hi, kinds).tolist() == [0, 4, 5]
+    ll_one = np.array([-10.0, -11.0, -12.0, -np.inf, -np.inf, -np.inf])
+    assert diverse_best(cand, ll_one, 3, lo, hi, kinds).tolist() == [0, 1, 2]  # no start where rollouts fail

@@ -142,6 +142,51 @@ def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05
     return jnp.where(effect, lo + (hi - lo) * u, a_lo + (a_hi - a_lo) * (u - margin) / (1.0 - 2.0 * margin))
 
 
+#: Screened starts closer than this (Euclidean, in the prior box scaled to the unit cube) to a
+#: better one already chosen are passed over (:func:`diverse_best`).
+START_SEPARATION = 0.25
+
+
+def diverse_best(cand: np.ndarray, loglik: np.ndarray, n: int, lo, hi, kinds=None,
+                 separation: float = START_SEPARATION) -> np.ndarray:
+    """Indices of ``n`` starting points among screened candidates: the best by log-likelihood
+    first, then each next-best candidate at least ``separation`` from every one already chosen
+    (distances in the box ``lo``..``hi`` scaled to the unit cube, release-time coordinates
+    left out; candidates whose rollout failed are not spread to); where too few are that far
+    apart, the best of the rest fill up.
+
+    The likelihood of a screen point is a poor guide to which basin LM will end in: on a
+    two-object video the best screened points often share one wrong mode (object 2 stopping
+    early, high k2 with a light object 1, ``benchmarks/results/fit_world.md``) and all of the
+    4 best starts end there; spreading the starts keeps one in each region.
+
+    Args:
+        cand: (S, d) candidate points theta.
+        loglik: (S,) their log-likelihoods (-inf for failed rollouts).
+        n: starts wanted (<= S).
+        lo, hi: (d,) the box's bounds.
+        kinds: optional (d,) coordinate kinds; "release" ones are not compared.
+        separation: the least distance between chosen starts.
+
+    Returns:
+        (n,) int indices into ``cand``, best first.
+    """
+    order = np.argsort(-np.asarray(loglik), kind="stable")
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    u = (np.asarray(cand, np.float64) - lo) / np.where(hi > lo, hi - lo, 1.0)
+    if kinds is not None:
+        u = u[:, [k != "release" for k in kinds]]
+    finite = np.isfinite(np.asarray(loglik))
+    chosen = []
+    for j in order:
+        if len(chosen) == n:
+            break
+        if finite[j] and all(np.linalg.norm(u[j] - u[c]) >= separation for c in chosen):
+            chosen.append(int(j))
+    rest = [int(j) for j in order if j not in chosen]
+    return np.array((chosen + rest)[:n], int)
+
+
 def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
     """(J^T J)^-1 for a (n, d) Jacobian of standardised residuals (pseudo-inverse if singular).
 
@@ -334,7 +379,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         cand = latin_hypercube_starts(problem, key, n_screen, around=around, spread=spread)
         ll = np.asarray(problem.log_likelihood(space.to_unconstrained(cand)))
         ll = np.where(np.isfinite(ll), ll, -np.inf)
-        starts.append(cand[np.argsort(-ll, kind="stable")[:n_starts]])
+        starts.append(cand[diverse_best(np.asarray(cand), ll, n_starts, *problem.space._bounds(), problem.space.kinds)])
     theta0 = jnp.concatenate(starts)
     z0 = space.to_unconstrained(theta0)
 

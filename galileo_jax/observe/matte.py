@@ -244,11 +244,14 @@ def _noise_sd(frames, background: np.ndarray, covered, idx) -> float:
     """Pixel noise SD of one channel (grey levels): robust scale of frame - background over
     the pixels no object covers, in a few frames."""
     vals = []
+    h, w = background.shape[:2]
+    every_7th = np.divmod(np.arange(0, h * w, 7), w)
     for k in idx[:: max(1, len(idx) // 4)]:
-        d = frames[k].astype(np.float32) - background
+        ys, xs = every_7th
         if covered is not None:
-            d = d[~covered(k)]
-        vals.append(d.reshape(-1, 3)[::7])
+            free = ~covered(k)[ys, xs]
+            ys, xs = ys[free], xs[free]
+        vals.append(frames[k][ys, xs].astype(np.float32) - background[ys, xs])
     d = np.concatenate(vals)
     return float(max(1.4826 * np.median(np.abs(d - np.median(d, axis=0))), 0.5))
 
@@ -829,8 +832,11 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
         # 3. update (a match far worse than the recent ones is no match: the object is hidden)
         for i, opts in options.items():
             recent = recent_rms[i][-10:]
-            if i in chosen and len(recent) > 2 and \
-                    chosen[i][1] > LOST_RMS * max(float(np.median(recent)), LOST_FLOOR) + 10.0:
+            # an object touching another shows less of its look (a face hidden by the other,
+            # which the template's border also covers): its match may be twice as far off
+            touching = i in chosen and _touching(i, chosen[i][0], chosen, px[k], halves)
+            if i in chosen and len(recent) > 2 and chosen[i][1] > (2.0 if touching else 1.0) * \
+                    (LOST_RMS * max(float(np.median(recent)), LOST_FLOOR) + 10.0):
                 del chosen[i]
 
             if i not in chosen:
@@ -847,9 +853,7 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
             misses[i] = 0
             centre, r, tpl, _ = chosen[i]
             speed = float(np.linalg.norm(vel[i]))
-            near = any(np.linalg.norm(centre - (chosen[j][0] if j in chosen else px[k, j])) <
-                       math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4
-                       for j in range(n) if j != i and (j in chosen or np.all(np.isfinite(px[k, j]))))
+            near = _touching(i, centre, chosen, px[k], halves)
             if not near:
                 at = _recentre(frames, idx, k, centre, halves[i], tpl.angle, 2.0 + 0.5 * speed)
                 if at is not None and np.linalg.norm(at - centre) < 0.5 * min(halves[i]):
@@ -870,6 +874,20 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
                 turned[i] = _evolve(turned[i], frames[k], centre, EVOLVE)
         prev = k
     return px, rms, verified, lost
+
+
+def _touching(i: int, centre, chosen: dict, fixed: np.ndarray, halves) -> bool:
+    """Whether object ``i`` at ``centre`` (px) is within a few px of touching another object,
+    at its chosen candidate (``chosen``: {j: (centre, ...)}) or else at its position in
+    ``fixed`` ((n, 2) px, NaN where unknown)."""
+    for j in range(len(halves)):
+        if j == i:
+            continue
+        other = chosen[j][0] if j in chosen else fixed[j]
+        if np.all(np.isfinite(other)) and \
+                np.linalg.norm(np.asarray(centre) - other) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4:
+            return True
+    return False
 
 
 def _candidates(frame, tpl: _Template, pred, speed: float, half, recent: list) -> list:
@@ -909,7 +927,7 @@ def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) ->
     previous = previous or {}
 
     def apart(i, c, j, d):
-        if np.linalg.norm(c - d) < 0.5 * (min(halves[i]) + min(halves[j])):  # touching: the full sum
+        if np.linalg.norm(c - d) < 0.75 * (halves[i][0] + halves[j][0]):  # rigid bodies: touching at most
             return False
         if i in previous and j in previous:
             return float(np.dot(c - d, previous[i] - previous[j])) > 0.0
