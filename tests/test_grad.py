@@ -221,7 +221,7 @@ def test_diverse_best_keeps_a_start_in_each_region_best_first():
     the separation away from every chosen one (release-time coordinates not compared); a
     cluster of good points in one region gives one start, not all of them; too few distinct
     regions are filled up with the best of the rest."""
-    from galileo_jax.inference.grad import diverse_best
+    from galileo_jax.inference.grad import diverse_best, unit_box
 
     lo, hi = np.array([0.0, 0.0, -1.0, -0.1]), np.array([1.0, 1.0, 1.0, 0.1])
     kinds = ("friction", "friction", "phi", "release")
@@ -232,11 +232,15 @@ def test_diverse_best_keeps_a_start_in_each_region_best_first():
                      [0.2, 0.12, 0.32, 0.0],    # 4: next to 3
                      [0.9, 0.50, -0.80, 0.0]])  # 5: a third region, worst
     ll = np.array([-10.0, -11.0, -12.0, -13.0, -14.0, -30.0])
-    assert diverse_best(cand, ll, 3, lo, hi, kinds).tolist() == [0, 3, 5]
-    assert diverse_best(cand, ll, 4, lo, hi, kinds).tolist() == [0, 3, 5, 1]  # filled up with the best left
-    assert diverse_best(cand, ll, 2, lo, hi, kinds, separation=0.0).tolist() == [0, 1]  # plain ranking
+    u = unit_box(cand, lo, hi, kinds)
+    assert u.shape == (6, 3)
+    assert np.asarray(diverse_best(u, ll, 3)).tolist() == [0, 3, 5]
+    assert np.asarray(diverse_best(u, ll, 4)).tolist() == [0, 3, 5, 1]  # filled up with the best left
+    assert np.asarray(diverse_best(u, ll, 2, separation=0.0)).tolist() == [0, 1]  # plain ranking
     ll_fail = ll.copy()
     ll_fail[3] = -np.inf  # a failed rollout is chosen only when nothing else is left
-    assert diverse_best(cand, ll_fail, 3, lo, hi, kinds).tolist() == [0, 4, 5]
+    assert np.asarray(diverse_best(u, ll_fail, 3)).tolist() == [0, 4, 5]
     ll_one = np.array([-10.0, -11.0, -12.0, -np.inf, -np.inf, -np.inf])
-    assert diverse_best(cand, ll_one, 3, lo, hi, kinds).tolist() == [0, 1, 2]  # no start where rollouts fail
+    assert np.asarray(diverse_best(u, ll_one, 3)).tolist() == [0, 1, 2]  # no start where rollouts fail
+    batched = jax.vmap(diverse_best, in_axes=(None, 0, None))(u, np.stack([ll, ll_fail]), 3)  # as solve_batch
+    assert np.asarray(batched).tolist() == [[0, 3, 5], [0, 4, 5]]

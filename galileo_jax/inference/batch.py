@@ -40,8 +40,9 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from galileo_jax.inference.grad import (MAX_LM_STARTS, GradResult, _lm_solver, gauss_newton_covariance,
-                                        grad_result, latin_hypercube_starts, polish_many, residual_jacobian)
+from galileo_jax.inference.grad import (MAX_LM_STARTS, GradResult, _lm_solver, diverse_best,
+                                        gauss_newton_covariance, grad_result, latin_hypercube_starts, polish_many,
+                                        residual_jacobian, unit_box)
 from galileo_jax.inference.problem import (DEFAULT_FD_STEP, Engine, Problem, ProblemData, cached_jit,
                                            check_residual_args, fd_jacobian_fn, map_batch)
 
@@ -158,7 +159,7 @@ def solve_batch(engine: Engine, z_cand: jax.Array, data: ProblemData, *, n_start
     """Screen, Levenberg-Marquardt and Jacobian of B videos as one (sharded) computation.
 
     Per video (pure, vmapped over the videos): the log-likelihood of the ``C`` candidates,
-    the best ``n_starts`` of them (``lax.top_k``), LM from each (``grad._lm_solver``), the
+    ``n_starts`` of them (the best, spread over the screen: ``grad.diverse_best``), LM from each (``grad._lm_solver``), the
     winning start and the FD Jacobian of the residuals there.
 
     Arguments:
@@ -182,8 +183,8 @@ def solve_batch(engine: Engine, z_cand: jax.Array, data: ProblemData, *, n_start
 
     def one(zc, d):
         ll = logliks(zc, d)
-        _, idx = jax.lax.top_k(jnp.where(jnp.isfinite(ll), ll, -jnp.inf), n_starts)
-        z0 = zc[idx]
+        u = unit_box(engine.space.from_unconstrained(zc), *engine.space._bounds(), engine.space.kinds)
+        z0 = zc[diverse_best(u, ll, n_starts)]
         z_end, cost, steps, ok, codes = solve(z0, d)
         cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
         best = jnp.argmin(cost)

@@ -147,13 +147,23 @@ def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05
 START_SEPARATION = 0.25
 
 
-def diverse_best(cand: np.ndarray, loglik: np.ndarray, n: int, lo, hi, kinds=None,
-                 separation: float = START_SEPARATION) -> np.ndarray:
+def unit_box(theta, lo, hi, kinds=None):
+    """(..., d') points ``theta`` (..., d) scaled to the unit cube of the box ``lo``..``hi``,
+    release-time coordinates (``kinds`` "release") left out: where :func:`diverse_best`
+    measures distances."""
+    lo, hi = jnp.asarray(lo), jnp.asarray(hi)
+    u = (jnp.asarray(theta) - lo) / jnp.where(hi > lo, hi - lo, 1.0)
+    if kinds is not None:
+        u = u[..., np.array([k != "release" for k in kinds], bool)]
+    return u
+
+
+def diverse_best(u, loglik, n: int, separation: float = START_SEPARATION) -> jax.Array:
     """Indices of ``n`` starting points among screened candidates: the best by log-likelihood
-    first, then each next-best candidate at least ``separation`` from every one already chosen
-    (distances in the box ``lo``..``hi`` scaled to the unit cube, release-time coordinates
-    left out; candidates whose rollout failed are not spread to); where too few are that far
-    apart, the best of the rest fill up.
+    first, then each next-best candidate at least ``separation`` from every one already chosen;
+    candidates whose rollout failed (non-finite log-likelihood) are not spread to; where too
+    few are that far apart, the best of the rest fill up. Pure JAX (jittable, vmappable over
+    videos: :func:`~galileo_jax.inference.batch.solve_batch` uses it too).
 
     The likelihood of a screen point is a poor guide to which basin LM will end in: on a
     two-object video the best screened points often share one wrong mode (object 2 stopping
@@ -161,30 +171,29 @@ def diverse_best(cand: np.ndarray, loglik: np.ndarray, n: int, lo, hi, kinds=Non
     4 best starts end there; spreading the starts keeps one in each region.
 
     Args:
-        cand: (S, d) candidate points theta.
-        loglik: (S,) their log-likelihoods (-inf for failed rollouts).
+        u: (S, d') candidate points in the unit cube (:func:`unit_box`).
+        loglik: (S,) their log-likelihoods.
         n: starts wanted (<= S).
-        lo, hi: (d,) the box's bounds.
-        kinds: optional (d,) coordinate kinds; "release" ones are not compared.
         separation: the least distance between chosen starts.
 
     Returns:
-        (n,) int indices into ``cand``, best first.
+        (n,) int indices into the candidates, best first.
     """
-    order = np.argsort(-np.asarray(loglik), kind="stable")
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    u = (np.asarray(cand, np.float64) - lo) / np.where(hi > lo, hi - lo, 1.0)
-    if kinds is not None:
-        u = u[:, [k != "release" for k in kinds]]
-    finite = np.isfinite(np.asarray(loglik))
-    chosen = []
-    for j in order:
-        if len(chosen) == n:
-            break
-        if finite[j] and all(np.linalg.norm(u[j] - u[c]) >= separation for c in chosen):
-            chosen.append(int(j))
-    rest = [int(j) for j in order if j not in chosen]
-    return np.array((chosen + rest)[:n], int)
+    ll = jnp.asarray(loglik)
+    finite = jnp.isfinite(ll)
+    order = jnp.argsort(-jnp.where(finite, ll, -jnp.inf), stable=True)
+    u_s, fin_s = jnp.asarray(u)[order], finite[order]
+
+    def pick(t, carry):
+        chosen, picks, dist = carry
+        spread = fin_s & ~chosen & (dist >= separation)
+        j = jnp.where(spread.any(), jnp.argmax(spread), jnp.argmax(~chosen))
+        dist = jnp.minimum(dist, jnp.linalg.norm(u_s - u_s[j], axis=-1))
+        return chosen.at[j].set(True), picks.at[t].set(j), dist
+
+    init = (jnp.zeros(len(ll), bool), jnp.zeros(n, int), jnp.full(len(ll), jnp.inf))
+    _, picks, _ = jax.lax.fori_loop(0, n, pick, init)
+    return order[picks]
 
 
 def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
@@ -379,7 +388,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         cand = latin_hypercube_starts(problem, key, n_screen, around=around, spread=spread)
         ll = np.asarray(problem.log_likelihood(space.to_unconstrained(cand)))
         ll = np.where(np.isfinite(ll), ll, -np.inf)
-        starts.append(cand[diverse_best(np.asarray(cand), ll, n_starts, *problem.space._bounds(), problem.space.kinds)])
+        u = unit_box(cand, *problem.space._bounds(), problem.space.kinds)
+        starts.append(cand[np.asarray(diverse_best(u, ll, n_starts))])
     theta0 = jnp.concatenate(starts)
     z0 = space.to_unconstrained(theta0)
 
