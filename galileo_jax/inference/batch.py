@@ -9,10 +9,10 @@ go into one pure, jitted function that vmaps the per-video fit over the video ax
 LM iteration is one batched set of rollouts for all videos and starts together.
 
 Starts: every video screens the same ``n_screen`` Latin-hypercube points (one key) and solves
-from its own best ``n_starts`` of them, exactly as it would alone (the screen ranks its own
-likelihood); the polish draws the same normals for every video. So a video fitted in a batch
-ends where :func:`fit_grad` with the same key ends (up to floating-point order; the batched
-while loop freezes each start once it has converged).
+from its own ``n_starts`` of them (``grad.diverse_best``), exactly as it would alone (the
+screen ranks its own likelihood); the polish draws the same normals for every video. So a
+video fitted in a batch ends where :func:`fit_grad` with the same key ends (up to
+floating-point order; the batched while loop freezes each start once it has converged).
 
 Sharding: with more than one local device (GPUs, or CPU devices forced with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N``) the video axis is laid on a
@@ -55,7 +55,7 @@ class BatchSolve(NamedTuple):
     the mesh when there is one).
 
     Attributes:
-        z0: (B, S, d) LM starts in z (the best S screened points of each video).
+        z0: (B, S, d) LM starts in z (S screened points of each video, the best spread out).
         z_end: (B, S, d) LM end points in z.
         cost: (B, S) end costs |r|^2 / 2 (inf where not finite).
         steps: (B, S) LM steps per start.
@@ -159,8 +159,8 @@ def solve_batch(engine: Engine, z_cand: jax.Array, data: ProblemData, *, n_start
     """Screen, Levenberg-Marquardt and Jacobian of B videos as one (sharded) computation.
 
     Per video (pure, vmapped over the videos): the log-likelihood of the ``C`` candidates,
-    ``n_starts`` of them (the best, spread over the screen: ``grad.diverse_best``), LM from each (``grad._lm_solver``), the
-    winning start and the FD Jacobian of the residuals there.
+    ``n_starts`` of them (the best, spread over the screen: ``grad.diverse_best``), LM from
+    each (``grad._lm_solver``), the winning start and the FD Jacobian of the residuals there.
 
     Arguments:
         engine: the shared engine (:func:`stack_data`).
@@ -205,7 +205,7 @@ def fit_grad_batch(problems: Sequence[Problem], key: jax.Array, *, n_starts: int
     computation, sharded over ``devices`` (default: all local devices) when there are several.
 
     Each video is fitted separately (its own parameters; a JOINT fit with shared parameters is
-    ``fit_grad`` of a :class:`~galileo_jax.inference.joint.JointProblem`), from its own best
+    ``fit_grad`` of a :class:`~galileo_jax.inference.joint.JointProblem`), from its own
     ``n_starts`` of the same ``n_screen`` screened points (module docstring), so its result
     matches ``fit_grad(problem, key, ...)`` with the same arguments. LM runs in calls of at most
     ``MAX_LM_STARTS // n_starts`` videos per device (``fit_grad``'s start chunking).

@@ -386,10 +386,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         around = None if (local_screen is None or init is None) else init
         spread = 0.25 if local_screen is None else jnp.asarray(local_screen, jnp.float64)
         cand = latin_hypercube_starts(problem, key, n_screen, around=around, spread=spread)
-        ll = np.asarray(problem.log_likelihood(space.to_unconstrained(cand)))
-        ll = np.where(np.isfinite(ll), ll, -np.inf)
-        u = unit_box(cand, *problem.space._bounds(), problem.space.kinds)
-        starts.append(cand[np.asarray(diverse_best(u, ll, n_starts))])
+        ll = problem.log_likelihood(space.to_unconstrained(cand))  # failed rollouts: diverse_best ranks them last
+        starts.append(cand[np.asarray(diverse_best(unit_box(cand, *space._bounds(), space.kinds), ll, n_starts))])
     theta0 = jnp.concatenate(starts)
     z0 = space.to_unconstrained(theta0)
 

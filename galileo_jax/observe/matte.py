@@ -853,8 +853,7 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
             misses[i] = 0
             centre, r, tpl, _ = chosen[i]
             speed = float(np.linalg.norm(vel[i]))
-            near = _touching(i, centre, chosen, px[k], halves)
-            if not near:
+            if not touching:
                 at = _recentre(frames, idx, k, centre, halves[i], tpl.angle, 2.0 + 0.5 * speed)
                 if at is not None and np.linalg.norm(at - centre) < 0.5 * min(halves[i]):
                     centre, verified[k, i] = at, True
@@ -870,7 +869,8 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
             px[k, i], rms[k, i] = centre, r
             typical = float(np.median(recent_rms[i][-10:])) if len(recent_rms[i]) > 2 else np.inf
             recent_rms[i].append(r)
-            if not near and np.isfinite(typical) and r <= 1.1 * typical + 2.0:  # the look evolves (blur, turn, light)
+            # the look evolves (blur, turn, light)
+            if not touching and np.isfinite(typical) and r <= 1.1 * typical + 2.0:
                 turned[i] = _evolve(turned[i], frames[k], centre, EVOLVE)
         prev = k
     return px, rms, verified, lost
@@ -915,12 +915,12 @@ def _candidates(frame, tpl: _Template, pred, speed: float, half, recent: list) -
 
 def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) -> dict:
     """One candidate per object (:func:`_candidates`) minimising the summed cost, with no two
-    objects (also those ``fixed`` where they are) closer than half the sum of their
-    smaller half sizes, and, where ``previous`` gives both objects' positions in the frame
-    before, in the same order as there (the vector from one to the other does not turn by
-    more than 90 degrees in a frame: two objects on one ramp cannot pass through each other;
-    without this, look-alikes that collide may swap identities). Objects without candidates
-    are left out."""
+    objects (also those ``fixed`` where they are) closer than 3/4 of the sum of their half
+    lengths along the path (rigid bodies touch at most), and, where ``previous`` gives both
+    objects' positions in the frame before, in the same order as there (the vector from one
+    to the other does not turn by more than 90 degrees in a frame: two objects on one ramp
+    cannot pass through each other; without this, look-alikes that collide may swap
+    identities). Objects without candidates are left out."""
     ids = [i for i in options if options[i]]
     if not ids:
         return {}
