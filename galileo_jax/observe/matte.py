@@ -67,6 +67,11 @@ LOST_RMS = 3.0
 #: ... the recent RMS taken as at least this (grey levels): a resting object matches its own
 #: look almost exactly, and its first moving frames (blur, an impact) must not count as misses.
 LOST_FLOOR = 12.0
+#: Speed (px per frame) from which the rough pass also matches an object's look motion-blurred ...
+BLUR_SPEED = 6.0
+#: ... over these shares of a frame's motion (the camera's shutter, as a share of the frame
+#: interval: 0.5 is the common 180-degree shutter).
+SHUTTERS = (0.5, 1.0)
 #: Turn (rad) of the template tried either way when the rough pass searches wider.
 WIDE_TURN = math.radians(15.0)
 #: Relative change of an object's colour along its path (light, shading) that its palette
@@ -824,8 +829,10 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
                     _visible_fraction(frames.shape[1:], pred, halves[i], angle[i]) < 1.0:
                 alive[i] = False  # leaving the image
                 continue
-            options[i] = _candidates(frames[k], turned[i], pred, float(np.linalg.norm(vel[i])), halves[i],
-                                     recent_rms[i][-10:])
+            # near another object an impact may change its speed at once: its blur is not known
+            near = _touching(i, px[prev, i], {}, px[prev], halves, gap=4.0 + float(np.linalg.norm(vel[i])))
+            options[i] = _candidates(frames[k], turned[i], pred, vel[i], halves[i], recent_rms[i][-10:],
+                                     blurred=not near)
         # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
         chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
                          halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))})
@@ -876,8 +883,8 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
     return px, rms, verified, lost
 
 
-def _touching(i: int, centre, chosen: dict, fixed: np.ndarray, halves) -> bool:
-    """Whether object ``i`` at ``centre`` (px) is within a few px of touching another object,
+def _touching(i: int, centre, chosen: dict, fixed: np.ndarray, halves, gap: float = 4.0) -> bool:
+    """Whether object ``i`` at ``centre`` (px) is within ``gap`` px of touching another object,
     at its chosen candidate (``chosen``: {j: (centre, ...)}) or else at its position in
     ``fixed`` ((n, 2) px, NaN where unknown)."""
     for j in range(len(halves)):
@@ -885,26 +892,65 @@ def _touching(i: int, centre, chosen: dict, fixed: np.ndarray, halves) -> bool:
             continue
         other = chosen[j][0] if j in chosen else fixed[j]
         if np.all(np.isfinite(other)) and \
-                np.linalg.norm(np.asarray(centre) - other) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4:
+                np.linalg.norm(np.asarray(centre) - other) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + gap:
             return True
     return False
 
 
-def _candidates(frame, tpl: _Template, pred, speed: float, half, recent: list) -> list:
+def _blurred(tpl: _Template, length: float, direction: float) -> _Template:
+    """The template as a camera sees it moving ``length`` px at ``direction`` (rad) during
+    the exposure: its image averaged along that segment (a box filter, the exposure of a
+    shutter open for that stretch of the motion) and its mask swept along it. Padded by the
+    border's pixels (background around the object's outline) so the swept mask fits."""
+    pad = int(math.ceil(0.5 * length)) + 1
+    img = cv2.copyMakeBorder(tpl.image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    mask = cv2.copyMakeBorder(tpl.mask, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+    size = 2 * pad + 1
+    line = np.zeros((size, size), np.float32)
+    d = np.array([math.cos(direction), math.sin(direction)]) * 0.5 * length
+    p0, p1 = np.round((pad - d) * 16).astype(int), np.round((pad + d) * 16).astype(int)
+    cv2.line(line, tuple(map(int, p0)), tuple(map(int, p1)), 1.0, thickness=1, lineType=cv2.LINE_AA, shift=4)
+    line /= line.sum()
+    img = cv2.filter2D(img, -1, line, borderType=cv2.BORDER_REPLICATE)
+    mask = cv2.dilate(mask, (line > 0).astype(np.uint8))
+    return _Template(img, mask, tpl.centre + pad, tpl.angle)
+
+
+def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: bool = True) -> list:
     """Candidate positions of one object in a frame for :func:`_rough_pass`: (centre, RMS,
     template, cost) tuples. Searched within 4 px plus a frame's motion of the prediction
     (twice the object's size while its speed is not known yet); where the best is much worse
     than the recent matches (a turn onto the floor, an impact), also with the template turned
-    by +-:data:`WIDE_TURN` and three times wider. A candidate pays for its distance from the
-    prediction: the recent RMS times (distance / reach)^2, so a look-alike in the scenery does
-    not win over the object where it is expected."""
+    by +-:data:`WIDE_TURN` and three times wider. With ``blurred`` (not near another object),
+    an object moving at least :data:`BLUR_SPEED` px per frame whose look fits worse than it
+    did is also matched motion-blurred (:func:`_blurred`, over each of :data:`SHUTTERS` of a
+    frame's motion; the shutter is unknown): a sharp look matched to a long streak slides
+    along it. A candidate pays for its distance from the prediction: the recent RMS times
+    (distance / reach)^2, so a look-alike in the scenery does not win over the object where it
+    is expected. The template returned is the sharp one (the next frame blurs it anew)."""
+    speed = float(np.linalg.norm(vel))
     local = 4.0 + speed if len(recent) > 2 else 4.0 + max(speed, 2 * max(half))
     typical = float(np.median(recent)) if len(recent) > 2 else np.inf
-    out = [(c, r, tpl) for c, r in _match(frame, tpl, pred, local)]
-    if not out or out[0][1] > 1.5 * typical + 3.0:
+
+    def matches(t, radius, sharp: bool, blur: bool):
+        found = _match(frame, t, pred, radius) if sharp else []
+        if blur:
+            direction = math.atan2(vel[1], vel[0])
+            for f in SHUTTERS:
+                found += _match(frame, _blurred(t, f * speed, direction), pred, radius)
+        return [(c, r, t) for c, r in found]
+
+    def best(options):
+        return min((o[1] for o in options), default=np.inf)
+
+    out = matches(tpl, local, True, False)
+    # the sharp look fits worse than it did: also try it blurred
+    blur = blurred and speed >= BLUR_SPEED and best(out) > 1.1 * typical + 2.0
+    if blur:
+        out += matches(tpl, local, False, True)
+    if best(out) > 1.5 * typical + 3.0:
         for a, radius in ((-WIDE_TURN, local), (WIDE_TURN, local), (0.0, 3 * local + max(half))):
-            t = tpl if a == 0.0 else _turned(tpl, tpl.angle + a)
-            out += [(c, r, t) for c, r in _match(frame, t, pred, radius)]
+            out += matches(tpl if a == 0.0 else _turned(tpl, tpl.angle + a), radius, True, blur)
 
     def cost(c, r):
         far = (float(np.linalg.norm(c - pred)) / local) ** 2

@@ -32,7 +32,7 @@ from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import footprint, track_matte
 from galileo_jax.observe.outline import track_circles
 from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, object_windows,
-                                        path_direction, window_corners)
+                                        path_direction, polygon_mask, window_corners)
 from galileo_jax.scene import Scene
 
 #: Frames in which a KLT track and the colour track of the same object disagree by more than
@@ -195,7 +195,7 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     tracks = Tracks(*(np.stack([parts[i][m] for i in range(n)], axis=1) for m in range(4)))
     downhill = [path_direction(scene, calib, i) for i in range(n)]
     tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame,  # may switch to "colour"
-                                          _pair_gaps(wins))
+                                          _pair_gaps(wins), scenery=(frames, background, wins))
     cut = [i for i in range(n) if methods[i] != "outline"]
     return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
 
@@ -372,8 +372,24 @@ def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> n
     return np.where(np.isfinite(resid), resid, np.inf)
 
 
-def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=None, k0: int = 0, gaps=None
-                 ) -> tuple[Tracks, np.ndarray, np.ndarray]:
+def _on_scenery(frames: np.ndarray, background: np.ndarray, px: np.ndarray, frames_asked: np.ndarray,
+                win: Window) -> np.ndarray:
+    """(N,) bool: frames among ``frames_asked`` (N,) in which a track's footprint (its window
+    at ``px`` (N, 2), shrunk to 80%) shows the static ``background`` (grey): fewer than 15% of
+    its pixels differ from it by more than 12 grey levels and 4 robust SDs of the whole
+    frame's difference from it (its noise, as the scenery is most of the frame)."""
+    out = np.zeros(len(px), bool)
+    for k in np.flatnonzero(frames_asked & np.all(np.isfinite(px), axis=-1)):
+        gray = as_gray(frames[k])
+        d = cv2.absdiff(gray, background)
+        thr = max(12.0, 4.0 * 1.4826 * float(np.median(d[::4, ::4])))
+        inside = polygon_mask(d.shape, window_corners(px[k], win, shrink=0.8)) > 0
+        out[k] = bool(inside.any()) and float((d[inside] > thr).mean()) < 0.15
+    return out
+
+
+def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=None, k0: int = 0, gaps=None,
+                 scenery=None) -> tuple[Tracks, np.ndarray, np.ndarray]:
     """Compare each KLT-tracked object with its colour track where both measured well
     (colour quality >= 0.9), after removing the offset between the points the two measure
     (:func:`_offset_residuals`: affine in the image position; the motion is what must agree).
@@ -385,6 +401,12 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
     object (:func:`_overlaps`; its features moved onto the other object at a collision) is
     replaced by the colour track if that one never does and the KLT track does in at least
     :data:`CAUGHT_FRAMES` frames; else those frames are dropped.
+
+    Where they disagree in general (median distance over :data:`CROSS_CHECK_AGREE_PX`), KLT is
+    kept, unless (with ``scenery`` = (frames (N, H, W, 3), grey background or None, (n,)
+    windows)) its footprint shows the background (:func:`_on_scenery`: its features caught
+    on an edge of the scenery while the object moved on) in at least :data:`CAUGHT_FRAMES`
+    frames in which the colour track's does not: the colour track replaces it.
 
     Where they agree in general (median distance at most :data:`CROSS_CHECK_AGREE_PX`): if
     the colour track is the steadier of the two (its noise SD from third differences,
@@ -432,7 +454,14 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
             continue
         d = _offset_residuals(px[:, i], px_c, both)
         agree[i] = float(np.median(d[both]))
-        if agree[i] > CROSS_CHECK_AGREE_PX:  # they disagree everywhere: the colour track is the suspect one
+        if agree[i] > CROSS_CHECK_AGREE_PX:  # they disagree everywhere: the colour track is the suspect one ...
+            if scenery is not None and scenery[1] is not None:  # ... unless KLT sits on the scenery
+                frames, background, wins = scenery
+                apart = valid[:, i] & valid_c & (d > CROSS_CHECK_PX)
+                stuck = _on_scenery(frames, background, px[:, i], apart, wins[i])
+                stuck &= ~_on_scenery(frames, background, px_c, stuck, wins[i])
+                if stuck.sum() >= CAUGHT_FRAMES:
+                    take_colour(i, px_c, valid_c, q_c)
             continue
         sd_klt = max(estimate_noise_sd(px[both, i, j]) for j in range(2))
         sd_col = max(estimate_noise_sd(px_c[both, j]) for j in range(2))
