@@ -932,25 +932,25 @@ def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: b
     local = 4.0 + speed if len(recent) > 2 else 4.0 + max(speed, 2 * max(half))
     typical = float(np.median(recent)) if len(recent) > 2 else np.inf
 
-    def matches(t, radius, sharp: bool, blur: bool):
-        found = _match(frame, t, pred, radius) if sharp else []
-        if blur:
-            direction = math.atan2(vel[1], vel[0])
-            for f in SHUTTERS:
-                found += _match(frame, _blurred(t, f * speed, direction), pred, radius)
-        return [(c, r, t) for c, r in found]
+    def blurred_looks(t):
+        direction = math.atan2(vel[1], vel[0])
+        return [_blurred(t, f * speed, direction) for f in SHUTTERS]
+
+    def matches(t, radius, looks):  # the look t matched as each of ``looks`` (t or t blurred)
+        return [(c, r, t) for v in looks for c, r in _match(frame, v, pred, radius)]
 
     def best(options):
         return min((o[1] for o in options), default=np.inf)
 
-    out = matches(tpl, local, True, False)
+    out = matches(tpl, local, [tpl])
     # the sharp look fits worse than it did: also try it blurred
     blur = blurred and speed >= BLUR_SPEED and best(out) > 1.1 * typical + 2.0
     if blur:
-        out += matches(tpl, local, False, True)
+        out += matches(tpl, local, blurred_looks(tpl))
     if best(out) > 1.5 * typical + 3.0:
         for a, radius in ((-WIDE_TURN, local), (WIDE_TURN, local), (0.0, 3 * local + max(half))):
-            out += matches(tpl if a == 0.0 else _turned(tpl, tpl.angle + a), radius, True, blur)
+            t = tpl if a == 0.0 else _turned(tpl, tpl.angle + a)
+            out += matches(t, radius, [t] + (blurred_looks(t) if blur else []))
 
     def cost(c, r):
         far = (float(np.linalg.norm(c - pred)) / local) ** 2

@@ -372,19 +372,21 @@ def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> n
     return np.where(np.isfinite(resid), resid, np.inf)
 
 
-def _on_scenery(frames: np.ndarray, background: np.ndarray, px: np.ndarray, frames_asked: np.ndarray,
+def _on_scenery(frames: np.ndarray, background: np.ndarray, tracks: list, frames_asked: np.ndarray,
                 win: Window) -> np.ndarray:
-    """(N,) bool: frames among ``frames_asked`` (N,) in which a track's footprint (its window
-    at ``px`` (N, 2), shrunk to 80%) shows the static ``background`` (grey): fewer than 15% of
-    its pixels differ from it by more than 12 grey levels and 4 robust SDs of the whole
-    frame's difference from it (its noise, as the scenery is most of the frame)."""
-    out = np.zeros(len(px), bool)
-    for k in np.flatnonzero(frames_asked & np.all(np.isfinite(px), axis=-1)):
-        gray = as_gray(frames[k])
-        d = cv2.absdiff(gray, background)
+    """(m, N) bool: per track of ``tracks`` (m tracks' pixels (N, 2)) the frames among
+    ``frames_asked`` (N,) in which its footprint (the window at its pixel, shrunk to 80%) shows
+    the static ``background`` (grey): fewer than 15% of its pixels differ from it by more than
+    12 grey levels and 4 robust SDs of the whole frame's difference from it (its noise, as the
+    scenery is most of the frame). Each frame's difference is taken once for all tracks."""
+    out = np.zeros((len(tracks), len(frames_asked)), bool)
+    for k in np.flatnonzero(frames_asked):
+        d = cv2.absdiff(as_gray(frames[k]), background)
         thr = max(12.0, 4.0 * 1.4826 * float(np.median(d[::4, ::4])))
-        inside = polygon_mask(d.shape, window_corners(px[k], win, shrink=0.8)) > 0
-        out[k] = bool(inside.any()) and float((d[inside] > thr).mean()) < 0.15
+        for t, px in enumerate(tracks):
+            if np.all(np.isfinite(px[k])):
+                inside = polygon_mask(d.shape, window_corners(px[k], win, shrink=0.8)) > 0
+                out[t, k] = bool(inside.any()) and float((d[inside] > thr).mean()) < 0.15
     return out
 
 
@@ -458,9 +460,8 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
             if scenery is not None and scenery[1] is not None:  # ... unless KLT sits on the scenery
                 frames, background, wins = scenery
                 apart = valid[:, i] & valid_c & (d > CROSS_CHECK_PX)
-                stuck = _on_scenery(frames, background, px[:, i], apart, wins[i])
-                stuck &= ~_on_scenery(frames, background, px_c, stuck, wins[i])
-                if stuck.sum() >= CAUGHT_FRAMES:
+                klt_on, colour_on = _on_scenery(frames, background, [px[:, i], px_c], apart, wins[i])
+                if (klt_on & ~colour_on).sum() >= CAUGHT_FRAMES:
                     take_colour(i, px_c, valid_c, q_c)
             continue
         sd_klt = max(estimate_noise_sd(px[both, i, j]) for j in range(2))
