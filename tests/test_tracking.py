@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 
 import cv2
 import numpy as np
@@ -29,7 +30,9 @@ import pytest
 
 from galileo_jax.errors import GalileoError
 from galileo_jax.observe import observe
+from galileo_jax.observe.klt import _Params, _klt
 from galileo_jax.observe.matte import ColourBackground, Look, Palette, footprint, matte, measure
+from galileo_jax.observe.tracks import frame_median
 from galileo_jax.scene import load_scene, scene_from_dict
 
 PARAMS = {"m1": 0.5, "k1": 0.15, "m2": 0.25, "k2": 0.3}
@@ -169,6 +172,56 @@ def test_matte_alpha_and_occluders():
     assert alpha[4, 7] == pytest.approx(0.5, abs=0.02)
     assert alpha[8, 8] == 0.0 and not unusable[8, 8]
     assert unusable[1, 1] and alpha[1, 1] == 0.0
+
+
+
+def test_matte_takes_the_best_of_several_colours_and_relit_ones():
+    """With two object colours, a pixel half covered by the second has alpha 0.5 (the colour
+    that explains it, not the first); a pixel of the first colour in shade (20% darker, no
+    learned colour explains it) is still the object's (alpha 1, usable)."""
+    B = np.full((6, 6, 3), (200.0, 190.0, 180.0), np.float32)
+    F = np.array([[40.0, 160.0, 60.0], [30.0, 40.0, 170.0]], np.float32)
+    img = B.copy()
+    img[1, 1] = 0.5 * F[1] + 0.5 * B[1, 1]
+    img[2, 2] = 0.8 * F[0]
+    img[3, 3] = F[0]
+    alpha, unusable = matte(img, B, Palette(F, 14.0), noise_sd=1.0)
+    assert alpha[1, 1] == pytest.approx(0.5, abs=0.02) and not unusable[1, 1]
+    assert alpha[2, 2] == pytest.approx(1.0, abs=0.02) and not unusable[2, 2]
+    assert alpha[3, 3] == pytest.approx(1.0, abs=0.01)
+    assert alpha[5, 5] == 0.0 and not unusable[5, 5]
+
+
+def test_frame_median_is_numpys_median():
+    """The sorting-network median equals ``np.median`` over frames exactly (odd and even
+    counts, and the sorted path past 64 frames), and with a validity mask the median of the
+    valid values alone (NaN where none is)."""
+    rng = np.random.default_rng(3)
+    for m in (1, 2, 3, 14, 15, 25, 70):
+        x = rng.integers(0, 256, (m, 5, 7, 3), dtype=np.uint8)
+        assert np.array_equal(frame_median(x), np.median(x, axis=0).astype(np.float32))
+        ok = rng.uniform(size=x.shape) < 0.4
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
+            ref = np.nanmedian(np.where(ok, x.astype(np.float32), np.nan), axis=0)
+        got = frame_median(x, ok)
+        assert np.array_equal(np.isnan(got), ~ok.any(axis=0))
+        assert np.array_equal(got[ok.any(axis=0)], ref[ok.any(axis=0)])
+
+
+def test_klt_on_a_crop_follows_a_shifted_texture():
+    """KLT, run on a crop of the frames around the points, follows a texture shifted by a
+    sub-pixel amount in a 960x540 frame as well as on the whole frame."""
+    rng = np.random.default_rng(0)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (540, 960)).astype(np.float32), (0, 0), 2.0)
+    shift = np.array([4.3, -2.6])
+    moved = cv2.warpAffine(tex, np.array([[1, 0, shift[0]], [0, 1, shift[1]]]), (960, 540),
+                           borderMode=cv2.BORDER_REFLECT)
+    f0, f1 = (np.repeat(np.clip(t, 0, 255).astype(np.uint8)[..., None], 3, axis=2) for t in (tex, moved))
+    pts = np.array([[700.0, 300.0], [712.0, 310.0], [690.0, 322.0]])
+    new = _klt(f0, f1, pts, pts, _Params(win=15, max_features=10, min_features=3, min_distance=3.0))
+    assert np.all(np.isfinite(new))
+    assert np.abs(new - pts - shift).max() < 0.05
 
 
 def _square_frame(centre, half, colour, bg, size=80, occluder=None):

@@ -20,8 +20,8 @@ from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import track_matte
 from galileo_jax.observe.outline import track_circles
 from galileo_jax.observe.track import track_scene, tracker_of
-from galileo_jax.observe.tracks import (Window, as_gray, background_model, expected_start_pixels, inside_fraction,
-                                       object_windows, path_direction, polygon_mask, window_corners)
+from galileo_jax.observe.tracks import (Window, as_gray, background_model, expected_start_pixels, frame_median,
+                                       inside_fraction, object_windows, path_direction, polygon_mask, window_corners)
 from galileo_jax.scene import Scene
 
 # ---------------------------------------------------------------------------- finding objects
@@ -283,7 +283,7 @@ def _centre_in_motion(frames, k: int, rough, window: Window, k_start: int, k1: i
     if len(idx) < 3:
         return None
     idx = np.asarray(idx)[np.unique(np.linspace(0, len(idx) - 1, min(n, len(idx))).round().astype(int))]
-    background = np.median(frames[idx], axis=0).astype(np.uint8)
+    background = frame_median(frames[idx]).astype(np.uint8)
     found = silhouette_centre(frames[k:k + 1], background, rough, window)
     if found is None:  # the flow can be more than half an object off (a small plain object)
         found = silhouette_centre(frames[k:k + 1], background, rough, window, reach=2.0 * math.hypot(*window.half))
@@ -367,7 +367,7 @@ def _refine(frames, k_on: int, rough, window: Window, disp: np.ndarray, clear=No
     ks = [k for k in range(k_on, len(frames)) if np.linalg.norm(disp[k]) > far and (clear is None or clear(k))]
     if not ks:
         return None
-    background = np.median(frames[ks[:5]], axis=0).astype(np.uint8)
+    background = frame_median(frames[ks[:5]]).astype(np.uint8)
     pre = frames[max(0, k_on - 4): max(1, k_on)]
     return _checked(silhouette_centre(pre, background, rough, window), rough, window)
 
@@ -393,7 +393,7 @@ def _refine_in_motion(frames, k_on: int, rough, window: Window, disp: np.ndarray
         if clear is not None and not all(clear(j, at) for j in ks_bg + [k]):
             continue
         if background is None:
-            background = np.median(frames[ks_bg], axis=0).astype(np.uint8)
+            background = frame_median(frames[ks_bg]).astype(np.uint8)
         centre = _checked(silhouette_centre(frames[k:k + 1], background, at, window), at, window)
         if centre is not None:
             found.append(centre - disp[k])

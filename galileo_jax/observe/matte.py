@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from galileo_jax.errors import TrackingError
-from galileo_jax.observe.tracks import Window, polygon_mask, window_corners
+from galileo_jax.observe.tracks import Window, frame_median, polygon_mask, window_corners
 
 #: Unusable pixels (occluded or without contrast) in the footprint above which the centre comes
 #: from aligning the template instead of the centroid.
@@ -83,6 +83,8 @@ GAIN = 0.35
 #: Smallest background threshold in grey levels (compressed video hides small noise in static
 #: areas, and its blocks differ by a few levels).
 BACKGROUND_MIN = 8.0
+#: Frames, spread evenly over the video, whose per-pixel median is the static background.
+BACKGROUND_FRAMES = 15
 _CROSS = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 
 
@@ -163,19 +165,7 @@ def _sample(n_frames: int, n: int) -> np.ndarray:
     return np.unique(np.linspace(0, n_frames - 1, min(n, n_frames)).round().astype(int))
 
 
-def _nanmedian0(vals: np.ndarray) -> np.ndarray:
-    """Median over axis 0 ignoring NaNs (as ``np.nanmedian(vals, axis=0)``, which for a short
-    axis goes through masked arrays, ~6x slower); columns with no value give NaN."""
-    s = np.sort(vals, axis=0)  # NaNs sort last
-    c = (~np.isnan(vals)).sum(axis=0)
-    lo = np.take_along_axis(s, np.maximum((c - 1) // 2, 0)[None], axis=0)[0]
-    hi = np.take_along_axis(s, np.maximum(c // 2, 0)[None], axis=0)[0]
-    out = (lo + hi) / 2
-    out[c == 0] = np.nan
-    return out
-
-
-def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None,
+def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAMES, region=None,
                       median: np.ndarray | None = None) -> ColourBackground:
     """The static background of a video, in colour.
 
@@ -203,19 +193,17 @@ def colour_background(frames: np.ndarray, covered=None, n: int = 15, region=None
     cut = (lambda k: covered(k)[y0:y1, x0:x1]) if covered is not None else None
     idx = _sample(len(frames), n)
     if median is None:
-        median = np.empty(part.shape[1:], np.float32)
-        for r in range(0, median.shape[0], 64):  # in bands of rows, to bound the float copy
-            median[r:r + 64] = np.median(part[idx, r:r + 64], axis=0)
+        median = frame_median(part[idx])
     inner = median.copy()
     if cut is not None:
         masks = np.stack([cut(k) for k in idx])  # (n, h, w)
         hit = masks.any(axis=0)
         if hit.any():
             ys, xs = np.nonzero(hit)
-            vals = part[idx][:, ys, xs].astype(np.float32)  # (n, m, 3)
-            vals[masks[:, ys, xs]] = np.nan
-            free = ~np.isnan(vals[..., 0]).all(axis=0)
-            inner[ys[free], xs[free]] = _nanmedian0(vals[:, free])
+            vals = part[idx[:, None], ys[None], xs[None]]  # (n, m, 3)
+            shown = np.repeat(~masks[:, ys, xs, None], 3, axis=2)
+            free = shown[..., 0].any(axis=0)
+            inner[ys[free], xs[free]] = frame_median(vals[:, free], shown[:, free])
             never = np.zeros(hit.shape, bool)
             never[ys[~free], xs[~free]] = True
             if never.any():
@@ -233,13 +221,11 @@ def _fill_from_all_frames(frames, covered, never: np.ndarray, out: np.ndarray) -
     """Fill ``never`` pixels (covered in every sampled frame) from any frame that shows them
     free (median); returns the pixels still never seen."""
     ys, xs = np.nonzero(never)
-    acc = np.full((len(frames), len(ys), 3), np.nan, np.float32)
-    for k in range(len(frames)):
-        free = ~covered(k)[ys, xs]
-        acc[k, free] = frames[k, ys[free], xs[free]]
-    seen = ~np.isnan(acc[..., 0]).all(axis=0)
+    shown = np.stack([~covered(k)[ys, xs] for k in range(len(frames))])  # (N, m)
+    seen = shown.any(axis=0)
     if seen.any():
-        out[ys[seen], xs[seen]] = _nanmedian0(acc[:, seen])
+        shown = np.repeat(shown[:, seen, None], 3, axis=2)
+        out[ys[seen], xs[seen]] = frame_median(frames[:, ys[seen], xs[seen]], shown)
     left = np.zeros_like(never)
     left[ys[~seen], xs[~seen]] = True
     return left
@@ -286,38 +272,30 @@ def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd:
         object's colours (an occluder), or where every colour of the object is too close to
         the background's to tell (module docstring).
     """
-    d = image - background
-    dd = np.einsum("hwc,hwc->hw", d, d)
+    h, w = image.shape[:2]
+    I, B = image.reshape(-1, 3), background.reshape(-1, 3)
+    d = I - B
+    dd = np.einsum("pc,pc->p", d, d)
     bg_thr, _ = thresholds(noise_sd)
     res_thr = palette.tolerance
-    best_r2 = np.full(dd.shape, np.inf, np.float32)
-    alpha = np.zeros(dd.shape, np.float32)
-    contrast2 = np.zeros(dd.shape, np.float32)
-    colours = np.asarray(palette.colours, np.float32)
-
-    def unmix(F):
-        """alpha, squared residual and squared contrast of every pixel against colours F (h, w, 3)."""
-        e = F - background
-        ee = np.einsum("hwc,hwc->hw", e, e)
-        de = np.einsum("hwc,hwc->hw", d, e)
-        a = np.clip(de / np.maximum(ee, 1e-6), 0.0, 1.0)
-        return a, dd - 2 * a * de + a * a * ee, ee  # |d - a e|^2
-
-    for F in colours:
-        a, r2, ee = unmix(np.broadcast_to(F, background.shape))
-        take = r2 < best_r2
-        best_r2, alpha = np.where(take, r2, best_r2), np.where(take, a, alpha)
-        contrast2 = np.maximum(contrast2, ee)
+    F = np.asarray(palette.colours, np.float32)  # (K, 3)
+    FF = np.einsum("kc,kc->k", F, F)
+    # with e_k = F_k - B: d.e_k = d.F_k - d.B and |e_k|^2 = |F_k|^2 - 2 F_k.B + |B|^2, as (K, P)
+    # products (no (K, P, 3) arrays)
+    ee = np.maximum(FF[:, None] - 2.0 * (F @ B.T) + np.einsum("pc,pc->p", B, B)[None], 0.0)
+    alpha, best_r2 = _unmix(F @ d.T - np.einsum("pc,pc->p", d, B)[None], dd, ee)
+    contrast2 = ee.max(axis=0)
     # where no colour explains a pixel as learned, the colour as the light there makes it (a
     # gain in [1 - GAIN, 1 + GAIN], from the pixel taken as wholly the object's): shade, a lamp
     # to one side; edges already explained keep their alpha
-    far = best_r2 > res_thr * res_thr
-    if far.any():
-        for F in colours:
-            g = np.clip(np.einsum("hwc,c->hw", image, F) / max(float(F @ F), 1e-6), 1.0 - GAIN, 1.0 + GAIN)
-            a, r2, _ = unmix(g[..., None] * F)
-            take = far & (r2 < best_r2)
-            best_r2, alpha = np.where(take, r2, best_r2), np.where(take, a, alpha)
+    far = np.flatnonzero(best_r2 > res_thr * res_thr)
+    if len(far):
+        g = np.clip(F @ I[far].T / np.maximum(FF, 1e-6)[:, None], 1.0 - GAIN, 1.0 + GAIN)  # (K, m)
+        e = g[..., None] * F[:, None] - B[far][None]  # (K, m, 3)
+        a, r2 = _unmix(np.einsum("mc,kmc->km", d[far], e), dd[far], np.einsum("kmc,kmc->km", e, e))
+        take = r2 < best_r2[far]
+        best_r2[far[take]], alpha[far[take]] = r2[take], a[take]
+    best_r2, alpha, contrast2, dd = (x.reshape(h, w) for x in (best_r2, alpha, contrast2, dd))
     best_r = np.sqrt(np.maximum(best_r2, 0.0))
     contrast = np.sqrt(contrast2)
     is_bg = dd < bg_thr * bg_thr
@@ -328,6 +306,20 @@ def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd:
     unusable = odd | (contrast < max(CONTRAST_MIN, 2 * bg_thr))
     alpha = np.where(is_bg | unusable, 0.0, alpha).astype(np.float32)
     return alpha, unusable
+
+
+def _unmix(de: np.ndarray, dd: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The best of K colours for each of P pixels: with d = I - B a pixel's difference from
+    the background (``dd`` (P,) = |d|^2) and e_k = F_k - B each colour's (``de`` (K, P) =
+    d.e_k, ``ee`` (K, P) = |e_k|^2), the alpha a_k = clip(d.e_k / |e_k|^2, 0, 1) and squared
+    residual |d - a_k e_k|^2 of the colour that leaves the least (the first on ties):
+    ``(alpha, residual^2)``, each (P,)."""
+    a = np.clip(de / np.maximum(ee, 1e-6), 0.0, 1.0)
+    r2 = dd[None] - 2 * a * de + a * a * ee
+    if len(r2) == 1:
+        return a[0], r2[0]
+    k = np.argmin(r2, axis=0)[None]
+    return np.take_along_axis(a, k, 0)[0], np.take_along_axis(r2, k, 0)[0]
 
 
 # ------------------------------------------------------------------------------ geometry
@@ -373,6 +365,18 @@ def _place(template: np.ndarray, t_centre, angle: float, at, shape) -> np.ndarra
     return cv2.warpAffine(template, M, (shape[1], shape[0]), flags=cv2.INTER_LINEAR, borderValue=0.0)
 
 
+def _gradient(image: np.ndarray) -> np.ndarray:
+    """(2, h, w) derivatives (d/du, d/dv) of an (h, w) image, as ``np.gradient`` takes them
+    (central differences inside, one-sided at the border), without its overhead."""
+    g = np.empty((2,) + image.shape, image.dtype)
+    gu, gv = g
+    gu[:, 1:-1] = (image[:, 2:] - image[:, :-2]) * 0.5
+    gu[:, 0], gu[:, -1] = image[:, 1] - image[:, 0], image[:, -1] - image[:, -2]
+    gv[1:-1] = (image[2:] - image[:-2]) * 0.5
+    gv[0], gv[-1] = image[1] - image[0], image[-1] - image[-2]
+    return g
+
+
 def align(alpha: np.ndarray, usable: np.ndarray, look: Look, angle: float, start, iters: int = 12
           ) -> tuple[np.ndarray, np.ndarray]:
     """Translate the object's template over a matte, using only the usable pixels.
@@ -393,18 +397,20 @@ def align(alpha: np.ndarray, usable: np.ndarray, look: Look, angle: float, start
         (alpha's shape).
     """
     c = np.asarray(start, float).copy()
-    w = usable.astype(np.float32)
-    T = None
+    w = usable.astype(np.float32).ravel()
+    a = alpha.ravel()
     for _ in range(iters):
         T = _place(look.template, look.centre, angle, c, alpha.shape)
-        gy, gx = np.gradient(T)
-        r = (alpha - T) * w
-        A = np.array([[np.sum(w * gx * gx), np.sum(w * gx * gy)], [np.sum(w * gx * gy), np.sum(w * gy * gy)]])
-        b = -np.array([np.sum(r * gx), np.sum(r * gy)])
-        if np.linalg.cond(A) > 1e6:
+        G = _gradient(T).reshape(2, -1)  # (gx, gy) per pixel
+        Gw = G * w
+        (sxx, sxy), (_, syy) = (Gw @ G.T).tolist()
+        bx, by = (-(Gw @ (a - T.ravel()))).tolist()
+        # the 2x2 normal equations in closed form (their condition number from the eigenvalues)
+        mean, dev = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
+        if mean - dev <= 0.0 or (mean + dev) / (mean - dev) > 1e6:
             break
-        step = np.linalg.solve(A, b)
-        step = np.clip(step, -3.0, 3.0)
+        det = sxx * syy - sxy * sxy
+        step = np.clip([(syy * bx - sxy * by) / det, (sxx * by - sxy * bx) / det], -3.0, 3.0)
         c += step
         if np.abs(step).max() < 0.005:
             break
@@ -751,7 +757,7 @@ def _recentre(frames: np.ndarray, idx: np.ndarray, k: int, centre, half, angle: 
         return None
     lo, hi = box
     crop = frames[k, lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16)
-    still = np.median(frames[idx, lo[1]:hi[1], lo[0]:hi[0]], axis=0).astype(np.int16)
+    still = frame_median(frames[idx, lo[1]:hi[1], lo[0]:hi[0]]).astype(np.int16)
     d = np.abs(crop - still).max(axis=-1)
     thr = max(BACKGROUND_MIN + 4, 4.0 * 1.4826 * float(np.median(d)))
     fg = ((d > thr) & footprint(d.shape, centre, half, angle, grow=margin, offset=lo)).astype(np.uint8)
@@ -811,7 +817,7 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
     templates = [_template(frames[k0], start[i], halves[i], angle[i]) for i in range(n)]
     turned = list(templates)
     recent_rms = [[] for _ in range(n)]
-    idx = _sample(N, 15)
+    idx = _sample(N, BACKGROUND_FRAMES)
     ks = range(k0 + step, N) if step > 0 else range(k0 - 1, -1, -1)
     prev = k0
     for k in ks:
@@ -1022,11 +1028,13 @@ def _speeds(px: np.ndarray) -> np.ndarray:
 
 
 def _clean_frames(px: np.ndarray, good: np.ndarray, i: int, halves, speed: np.ndarray, shape, start,
-                  n_max: int = 200) -> np.ndarray:
+                  after_moving: bool = True, n_max: int = 200) -> np.ndarray:
     """Frames in which object ``i`` was measured well (``good`` (N, n) bool) and is seen whole
-    and alone: inside the image, clear of the other objects, and (once it has moved) clear of
-    its start position, where a hand may have held it; the slowest first (sharpest), at most
-    ``n_max``."""
+    and alone: inside the image, clear of the other objects, and (with ``after_moving``, once
+    it has moved in at least 3 such frames) clear of its start position, where a hand may have
+    held it; the slowest first (sharpest), at most ``n_max``. Without ``after_moving``, every
+    such frame (a caller whose rough track left the object once it moved: the frames in which
+    it rested still show it)."""
     N, n = px.shape[:2]
     diag = 2 * math.hypot(*halves[i])
     ok = np.all(np.isfinite(px[:, i]), axis=1) & good[:, i]
@@ -1039,7 +1047,7 @@ def _clean_frames(px: np.ndarray, good: np.ndarray, i: int, halves, speed: np.nd
                     np.linalg.norm(px[k, i] - px[k, j]) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4:
                 ok[k] = False
     moved = ok & (np.linalg.norm(px[:, i] - start[i], axis=-1) > diag)
-    use = moved if moved.sum() >= 3 else ok
+    use = moved if after_moving and moved.sum() >= 3 else ok
     ks = np.flatnonzero(use)
     if len(ks) > n_max:
         ks = ks[np.argsort(speed[ks, i], kind="stable")[:n_max]]
@@ -1185,11 +1193,15 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
                                region=region, median=None if bg is None else bg.median)
         looks = []
         for i in range(n):
-            ks = _clean_frames(px, good, i, halves, speed, shape, start)
-            try:
-                looks.append(_learn_looks(frames, bg, px[:, i], ks, halves[i], angles[:, i]))
-                look_frame[i] = ks[0]
-            except ValueError:
+            for after_moving in (True, False):  # the frames it rested in if the others show no object
+                ks = _clean_frames(px, good, i, halves, speed, shape, start, after_moving)
+                try:
+                    looks.append(_learn_looks(frames, bg, px[:, i], ks, halves[i], angles[:, i]))
+                    look_frame[i] = ks[0]
+                    break
+                except ValueError:
+                    continue
+            else:
                 raise TrackingError(f"object {i + 1}: its colour does not stand out from the background (at pixel "
                                     f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {start_frame + first_frame}); "
                                     "check camera.start_pixels, or try tracker: features", object_index=i) from None

@@ -3,6 +3,7 @@
 * :class:`Tracks`: tracked image positions with their validity and per-frame quality.
 * :class:`Window`: an object's image footprint (a turned rectangle) and its polygon helpers.
 * :func:`background_model`: a grey view of the scene without the moving objects.
+* :func:`frame_median`: the per-pixel median of a stack of frames.
 * :func:`estimate_noise_sd`: a track's noise SD from its third differences.
 * :func:`object_windows`, :func:`path_direction`, :func:`expected_start_pixels`: where the
   scene's objects appear in the image and which way they start to move.
@@ -12,6 +13,7 @@ All pixel coordinates are (u, v): u to the right, v down, in px of the full-size
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -151,11 +153,65 @@ def background_model(frames: np.ndarray, n: int = 25) -> np.ndarray:
     background there."""
     first = len(frames) // 2
     idx = np.unique(np.linspace(first, len(frames) - 1, min(n, len(frames) - first)).round().astype(int))
-    grey = np.stack([as_gray(frames[k]) for k in idx])
-    out = np.empty(grey.shape[1:], np.uint8)
-    for r in range(0, grey.shape[1], 64):  # in bands of rows, to bound the float copy
-        out[r:r + 64] = np.median(grey[:, r:r + 64], axis=0).round().astype(np.uint8)
-    return out
+    return np.round(frame_median([as_gray(frames[k]) for k in idx])).astype(np.uint8)
+
+
+def frame_median(frames, valid: np.ndarray | None = None) -> np.ndarray:
+    """The per-pixel median of m images, as ``np.median(frames, axis=0)`` (the mean of the two
+    middle values for an even count) but in float32 and ~10x faster: a sorting network of
+    element-wise min/max over whole images (Batcher's odd-even merge sort, Knuth TAOCP vol. 3
+    section 5.3.4) instead of a partition per pixel (for m <= 64; more are sorted).
+
+    Args:
+        frames: m >= 1 images of one shape and integer dtype (a list or an (m, ...) array),
+            e.g. (m, H, W, 3) uint8.
+        valid: optional (m, ...) bool of the same shape: the values to use (e.g. the frames
+            in which no object covers a pixel); the median is then over those alone, and NaN
+            where none is valid.
+
+    Returns:
+        float32 array of one image's shape.
+    """
+    if valid is None:
+        v = [np.array(f) for f in frames]
+    else:
+        v = [np.where(ok, f, np.float32(np.inf)).astype(np.float32) for f, ok in zip(frames, valid)]
+    if len(v) <= 64:
+        for a, b in _merge_sort_network(len(v)):
+            v[a], v[b] = np.minimum(v[a], v[b]), np.maximum(v[a], v[b])
+    else:  # the network's comparators grow as m log^2 m: a sort along the stack instead
+        v = list(np.sort(np.stack(v), axis=0))
+    if valid is None:
+        m = len(v)
+        lo, hi = v[(m - 1) // 2].astype(np.float32), v[m // 2]
+    else:  # the invalid values (+inf) sorted last: the middle of the first ``count``
+        count = np.sum(valid, axis=0)
+        s = np.stack(v)
+        lo = np.take_along_axis(s, np.maximum((count - 1) // 2, 0)[None], axis=0)[0]
+        hi = np.take_along_axis(s, np.maximum(count // 2, 0)[None], axis=0)[0]
+        hi = np.where(count > 0, hi, np.nan)
+    return (lo + hi) * np.float32(0.5)
+
+
+@functools.lru_cache(maxsize=None)
+def _merge_sort_network(n: int) -> tuple[tuple[int, int], ...]:
+    """Comparators (a, b), a < b, of Batcher's odd-even merge sort for n inputs (the network
+    for the next power of two, without comparators touching the missing inputs: those would
+    hold +inf and never move)."""
+    size = 1 << max(n - 1, 0).bit_length()
+    pairs = []
+    p = 1
+    while p < size:
+        k = p
+        while k >= 1:
+            for j in range(k % p, size - k, 2 * k):
+                for i in range(min(k, size - j - k)):
+                    a, b = i + j, i + j + k
+                    if a // (2 * p) == b // (2 * p) and b < n:
+                        pairs.append((a, b))
+            k //= 2
+        p *= 2
+    return tuple(pairs)
 
 
 def as_gray(frame: np.ndarray) -> np.ndarray:
