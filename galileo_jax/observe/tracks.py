@@ -176,17 +176,17 @@ def frame_median(frames, valid: np.ndarray | None = None) -> np.ndarray:
         v = [np.array(f) for f in frames]
     else:
         v = [np.where(ok, f, np.float32(np.inf)).astype(np.float32) for f, ok in zip(frames, valid)]
-    if len(v) <= 64:
-        for a, b in _merge_sort_network(len(v)):
+    m = len(v)
+    if m <= 64:
+        for a, b in _merge_sort_network(m):
             v[a], v[b] = np.minimum(v[a], v[b]), np.maximum(v[a], v[b])
     else:  # the network's comparators grow as m log^2 m: a sort along the stack instead
-        v = list(np.sort(np.stack(v), axis=0))
+        v = np.sort(np.stack(v), axis=0)
     if valid is None:
-        m = len(v)
         lo, hi = v[(m - 1) // 2].astype(np.float32), v[m // 2]
     else:  # the invalid values (+inf) sorted last: the middle of the first ``count``
         count = np.sum(valid, axis=0)
-        s = np.stack(v)
+        s = np.asarray(v)
         lo = np.take_along_axis(s, np.maximum((count - 1) // 2, 0)[None], axis=0)[0]
         hi = np.take_along_axis(s, np.maximum(count // 2, 0)[None], axis=0)[0]
         hi = np.where(count > 0, hi, np.nan)
