@@ -562,3 +562,48 @@ def test_release_time_found_through_dropped_frames():
     s = 0.5 * 400.0 * np.clip(t - t_r, 0, None) ** 2
     s[1::3] = np.nan
     assert estimate_release_time(s, fps, 0.3) == pytest.approx(t_r, abs=0.01)
+
+
+def test_measurement_off_the_rough_track_and_lone_frames_are_dropped():
+    """Where the rough pass left an object (it left the image, and its look was last matched
+    on the scenery) the measurement's centroid can walk off onto another thing of its colour:
+    a centre more than the margin plus the object's size from the rough track is not
+    measured, one within it is; and a lone measured frame between unmeasured ones is dropped
+    (it gives no velocity and cannot be checked against the motion around it), a pair is kept."""
+    from galileo_jax.observe.matte import _measure_all, _not_isolated
+
+    bg, colour, half = (200, 190, 180), (40, 160, 60), 6.0
+    background = ColourBackground(np.full((80, 80, 3), bg, np.float32), 1.0)
+    alpha, _ = matte(_square_frame((40.0, 40.0), half, colour, bg).astype(np.float32), background.image,
+                     Palette(np.array([colour], np.float32), 14.0), 1.0)
+    template = np.ascontiguousarray(alpha[25:56, 25:56])
+    look = Look(Palette(np.array([colour], np.float32), 14.0), template, np.array([15.0, 15.0]),
+                float(template.sum()))
+    frames = np.stack([_square_frame((40.0, 40.0), half, colour, bg)] * 2)
+    guess = np.array([[[40.0, 34.0]], [[40.0, 34.0]]])  # 6 px above the square's centre
+    rough = np.array([[[40.0, 27.0]], [[40.0, 25.0]]])  # the rough track: 13 px and 15 px above it
+    pixels, quality, _ = _measure_all(frames, background, [[(np.array([40.0, 40.0]), look)]], guess,
+                                      [np.array([half, half])], np.zeros((2, 1)), np.zeros((2, 1)), rough)
+    assert quality[0, 0] > 0.9 and np.allclose(pixels[0, 0], [40.0, 40.0], atol=0.2)  # 13 <= 2 + 12
+    assert quality[1, 0] == 0.0 and np.array_equal(pixels[1, 0], guess[1, 0])  # 15 > 2 + 12: not measured
+    valid = np.array([0, 1, 0, 0, 1, 1, 0, 1, 0, 1], bool)[:, None]
+    assert np.array_equal(_not_isolated(valid)[:, 0], np.array([0, 0, 0, 0, 1, 1, 0, 0, 0, 0], bool))
+
+
+def test_real_plain_clip_keeps_no_frame_after_its_object_left():
+    """The real clip sliding_plain_R4 (a 12 px plain cylinder at 240 fps, ``../shared``): the
+    object slides down the board, hits a block at its foot at ~0.97 s and tumbles out of the
+    image by ~1.05 s. Every frame of its slide is kept, and none after it left: the rough pass
+    stays on the block, where dark scenery of the object's colour once passed as the object
+    in every 20-50th frame."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+    if not (root / "sliding_plain_R4.mp4").exists():
+        pytest.skip("the real clips (../shared/data/real) are not beside this checkout")
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "sliding_plain_R4.yaml")
+    obs = observe(root / "sliding_plain_R4.mp4", scene)
+    t = np.arange(len(obs.tracking.measured)) / obs.fps
+    kept = obs.tracking.measured[:, 0]
+    assert kept[(t > 0.3) & (t < 0.95)].mean() > 0.99
+    assert not kept[t > 1.06].any(), np.flatnonzero(kept & (t > 1.06))

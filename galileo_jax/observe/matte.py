@@ -1104,11 +1104,16 @@ def _nearest(looks: list[tuple[np.ndarray, Look]], at) -> Look:
 
 
 def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, angles: np.ndarray, speed: np.ndarray,
-                 ks=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 rough: np.ndarray, ks=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every frame (or the frames ``ks``) of every object measured (:func:`measure`) around
     ``px`` (N, n, 2), each keeping out of the others' footprints there: (N, n, 2) centres
     (``px`` where not measured), (N, n) qualities (0: not measured, or not wholly inside the
-    image), (N, n) aligned flags."""
+    image), (N, n) aligned flags.
+
+    A centre farther from the ``rough`` track (N, n, 2) than the measurement's margin plus the
+    object's smaller size (2 x its smaller half) is not measured: the centroid walked off the
+    object the rough pass followed, onto another thing (the scenery where an object that left
+    the image was last matched: the real clip sliding_plain_R4 after its object tumbled out)."""
     N, n = px.shape[:2]
     shape = frames.shape[1:3]
     known = np.all(np.isfinite(px), axis=-1)
@@ -1118,9 +1123,10 @@ def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, an
             if not known[k, i] or _visible_fraction(shape, px[k, i], halves[i], angles[k, i]) < 0.999:
                 continue
             others = [(px[k, j], halves[j], angles[k, j]) for j in range(n) if j != i and known[k, j]]
+            margin = 2.0 + 0.6 * speed[k, i]
             m = measure(frames[k], bg, _nearest(looks[i], px[k, i]), px[k, i], halves[i], angles[k, i],
-                        margin=2.0 + 0.6 * speed[k, i], blur=speed[k, i], keep_out=others)
-            if np.all(np.isfinite(m.centre)):
+                        margin=margin, blur=speed[k, i], keep_out=others)
+            if np.linalg.norm(m.centre - rough[k, i]) <= margin + 2.0 * min(halves[i]):
                 pixels[k, i], quality[k, i], aligned[k, i] = m.centre, m.quality, m.aligned
     return pixels, quality, aligned
 
@@ -1205,18 +1211,31 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
                 raise TrackingError(f"object {i + 1}: its colour does not stand out from the background (at pixel "
                                     f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {start_frame + first_frame}); "
                                     "check camera.start_pixels, or try tracker: features", object_index=i) from None
-        pixels, quality, aligned = _measure_all(frames, bg, looks, px, halves, angles, speed, measure_frames)
+        pixels, quality, aligned = _measure_all(frames, bg, looks, px, halves, angles, speed, rough, measure_frames)
         if measure_frames is None:
             good = quality >= 0.8
         else:  # frames not measured keep their rough-pass verdict
             ks = np.asarray(list(measure_frames), int)
             good[ks] = quality[ks] >= 0.8
         px = np.where((quality >= quality_min)[..., None], pixels, px)
-    valid = quality >= quality_min
+    valid = _not_isolated(quality >= quality_min)
     lost = lost_f.copy()
     if measure_frames is None:
         lost = np.where(lost >= 0, lost, _unseen_till_end(valid, rough, halves, angles, shape, start_frame))
     return MatteTracks(pixels, valid, quality, aligned, lost, rough, look_frame)
+
+
+def _not_isolated(valid: np.ndarray) -> np.ndarray:
+    """(N, n) ``valid`` without the frames whose neighbours on both sides (or on the one side
+    at either end) are not valid: a lone measurement between unmeasured frames gives no
+    velocity and cannot be checked against the motion around it (on the real clip
+    sliding_plain_R4, after its object tumbled out of the image, such lone frames were dark
+    scenery of the object's colour, every 20-50 frames)."""
+    before = np.zeros_like(valid)
+    after = np.zeros_like(valid)
+    before[1:] = valid[:-1]
+    after[:-1] = valid[1:]
+    return valid & (before | after)
 
 
 def _unseen_till_end(valid: np.ndarray, rough: np.ndarray, halves, angles: np.ndarray, shape, start_frame: int,
