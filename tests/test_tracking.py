@@ -607,3 +607,48 @@ def test_real_plain_clip_keeps_no_frame_after_its_object_left():
     kept = obs.tracking.measured[:, 0]
     assert kept[(t > 0.3) & (t < 0.95)].mean() > 0.99
     assert not kept[t > 1.06].any(), np.flatnonzero(kept & (t > 1.06))
+
+
+def test_bridge_follows_an_object_the_rough_track_left():
+    """Where the rough pass lost an object (its frames unmeasured from some frame on), the
+    bridge follows it on from its own last measurements: a square sliding to rest is measured
+    in every frame of the gap within 0.2 px; where it has gone (removed from the frames) no
+    frame is taken, and the coast ends."""
+    from galileo_jax.observe.matte import _bridge
+
+    bg, colour, half, size = (200, 190, 180), (40, 160, 60), 6.0, 120
+    background = ColourBackground(np.full((size, size, 3), bg, np.float32), 1.0)
+    alpha, _ = matte(_square_frame((60.0, 60.0), half, colour, bg, size).astype(np.float32), background.image,
+                     Palette(np.array([colour], np.float32), 14.0), 1.0)
+    template = np.ascontiguousarray(alpha[45:76, 45:76])
+    look = Look(Palette(np.array([colour], np.float32), 14.0), template, np.array([15.0, 15.0]),
+                float(template.sum()))
+    x = 20.0 + np.cumsum(np.clip(4.0 - 0.2 * np.arange(30), 0.0, None))  # slows from 4 px/frame to rest
+    truth = np.stack([x, np.full(30, 60.0)], axis=-1)
+    frames = np.stack([_square_frame(p, half, colour, bg, size) for p in truth])
+    frames[24:] = np.asarray(bg, np.uint8)  # gone from frame 24 (taken away)
+    N = len(truth)
+    pixels = np.full((N, 1, 2), 5.0)  # the rough track's wrong place in the gap
+    pixels[:10, 0] = truth[:10]
+    quality = np.zeros((N, 1))
+    quality[:10] = 0.95
+    _bridge(frames, background, [[(truth[0], look)]], pixels, quality, np.zeros((N, 1), bool),
+            [np.array([half, half])], np.zeros((N, 1)), 0.5)
+    assert np.all(quality[10:24, 0] >= 0.8), quality[:, 0]
+    assert np.abs(pixels[10:24, 0] - truth[10:24]).max() < 0.2
+    assert np.all(quality[24:, 0] == 0.0) and np.all(pixels[24:, 0] == 5.0)
+
+
+def test_objects_out_of_their_order_are_not_measured():
+    """Two objects on one ramp cannot pass through each other: in the frames where object 1's
+    measured centre is past object 2's (look-alikes whose identities a collision at speed
+    confused), neither is valid; touching in order, both are."""
+    from galileo_jax.observe.matte import _in_order
+
+    start = np.array([[10.0, 10.0], [50.0, 30.0]])
+    pixels = np.array([[[10.0, 10.0], [50.0, 30.0]],   # as at the start
+                       [[44.0, 30.0], [56.0, 30.0]],   # touching, in order
+                       [[60.0, 30.0], [52.0, 30.0]],   # object 1 past object 2
+                       [[52.0, 30.0], [52.0, 30.0]]])  # one on the other
+    ok = _in_order(pixels, start)
+    assert ok[:2].all() and not ok[2:].any()

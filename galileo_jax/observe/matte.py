@@ -27,6 +27,13 @@ such an object in every frame from its *colour matte* instead:
 Each measurement carries a quality in [0, 1]: the fraction of the object's matte that was
 seen and agreed with its template (:class:`Measurement`).
 
+* **Track** (:func:`track_matte`): every frame is measured where a rough track (template
+  matching) puts the object; a centre that walked farther from it than its margin plus the
+  object's size is not taken. Where the rough track lost an object, it is followed on from
+  its own measurements (:func:`_bridge`). Frames in which two objects are out of their start's
+  order (:func:`_in_order`: they cannot pass through each other) and lone measured frames
+  (:func:`_not_isolated`) are dropped.
+
 All pixel coordinates are (u, v): u to the right, v down, in px of the full-size frame.
 """
 
@@ -85,6 +92,8 @@ GAIN = 0.35
 BACKGROUND_MIN = 8.0
 #: Frames, spread evenly over the video, whose per-pixel median is the static background.
 BACKGROUND_FRAMES = 15
+#: Quality a measurement needs where no rough match confirms it (:func:`_bridge`).
+BRIDGE_QUALITY = 0.6
 _CROSS = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 
 
@@ -1218,11 +1227,79 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
             ks = np.asarray(list(measure_frames), int)
             good[ks] = quality[ks] >= 0.8
         px = np.where((quality >= quality_min)[..., None], pixels, px)
-    valid = _not_isolated(quality >= quality_min)
+    if measure_frames is None:
+        _bridge(frames, bg, looks, pixels, quality, aligned, halves, angles, quality_min)
+    valid = _not_isolated((quality >= quality_min) & _in_order(pixels, start))
     lost = lost_f.copy()
     if measure_frames is None:
         lost = np.where(lost >= 0, lost, _unseen_till_end(valid, rough, halves, angles, shape, start_frame))
     return MatteTracks(pixels, valid, quality, aligned, lost, rough, look_frame)
+
+
+def _bridge(frames, bg: ColourBackground, looks, pixels: np.ndarray, quality: np.ndarray, aligned: np.ndarray,
+            halves, angles: np.ndarray, quality_min: float, coast: int = 3) -> None:
+    """Follow each object on from its own measurements where the rough track left it (in place).
+
+    After the last frame of a measured run, each next frame is measured (:func:`measure`) where
+    the object's last two measured centres (constant velocity) put it, keeping out of the other
+    objects' footprints where they are measured; a measurement of quality >=
+    :data:`BRIDGE_QUALITY` (stricter than ``quality_min``: no rough match confirms it) is taken
+    and moves the prediction on. After ``coast`` frames running without one, or where the
+    object would leave the image, the run ends. Measured on the tracking benchmark: the rough
+    pass lost a small object at a collision, running 20-30 px ahead of or behind it (two
+    look-alikes touching at 320x240), and every frame after it went unmeasured.
+
+    Args:
+        pixels, quality, aligned: (N, n, 2) px, (N, n), (N, n) from :func:`_measure_all`,
+            updated where a frame is bridged.
+        halves, angles: footprint half sizes per object (px) and (N, n) tilts (rad).
+        quality_min: the validity threshold of the track.
+    """
+    N, n = quality.shape
+    shape = frames.shape[1:3]
+    for i in range(n):
+        k = 2
+        while k < N:
+            if quality[k, i] >= quality_min or quality[k - 1, i] < quality_min:
+                k += 1
+                continue
+            p = pixels[k - 1, i].copy()
+            v = p - pixels[k - 2, i] if quality[k - 2, i] >= quality_min else np.zeros(2)
+            missed = 0
+            while k < N and quality[k, i] < quality_min and missed < coast:
+                guess = p + v
+                if _visible_fraction(shape, guess, halves[i], angles[k, i]) < 0.999:
+                    break
+                speed = float(np.linalg.norm(v))
+                margin = 2.0 + 0.6 * speed
+                others = [(pixels[k, j], halves[j], angles[k, j]) for j in range(n)
+                          if j != i and quality[k, j] >= quality_min]
+                m = measure(frames[k], bg, _nearest(looks[i], guess), guess, halves[i], angles[k, i],
+                            margin=margin, blur=speed, keep_out=others)
+                if m.quality >= BRIDGE_QUALITY and np.linalg.norm(m.centre - guess) <= margin + min(halves[i]):
+                    pixels[k, i], quality[k, i], aligned[k, i] = m.centre, m.quality, m.aligned
+                    v, p, missed = m.centre - p, m.centre, 0
+                else:
+                    p, missed = guess, missed + 1
+                k += 1
+            while k < N and quality[k, i] < quality_min:
+                k += 1
+
+
+def _in_order(pixels: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """(N, n) bool: False for both objects of a pair in the frames where their measured
+    centres (N, n, 2) are no longer in the order of their ``start`` (n, 2): the vector from
+    one to the other has turned by 90 degrees or more from where it pointed there. Two objects
+    on one ramp cannot pass through each other, so their identities are in doubt there (look-
+    alikes after a collision at speed: the rough pass keeps their order frame to frame, but a
+    measurement or a bridge can still take the other's place)."""
+    N, n = pixels.shape[:2]
+    ok = np.ones((N, n), bool)
+    for i in range(n):
+        for j in range(i + 1, n):
+            swapped = np.einsum("kc,c->k", pixels[:, j] - pixels[:, i], start[j] - start[i]) <= 0.0
+            ok[swapped, i] = ok[swapped, j] = False
+    return ok
 
 
 def _not_isolated(valid: np.ndarray) -> np.ndarray:
