@@ -414,3 +414,15 @@ def test_rendered_video_with_hand(tmp_path):
     err = np.linalg.norm(obs.pixels - np.array(truth["pixels"]), axis=-1)
     assert np.median(err, axis=0).max() <= 2.0, np.median(err, axis=0)
     assert abs(obs.release_time - truth["release_time"]) * obs.fps < 0.5
+
+
+def test_object_neither_textured_nor_coloured_is_reported(clip):
+    """An object that ``tracker: auto`` can follow neither by features nor by colour (here
+    painted over with the background's grey) gets one line saying both, not only KLT's."""
+    frames = clip.frames.copy()
+    u, v = np.round(clip.pixels[0, 1]).astype(int)
+    frames[:, v - 25:v + 25, u - 30:u + 30] = 128
+    with pytest.raises(TrackingError, match=r"object 2: it shows too little texture .* colour does not stand "
+                                            r"out .* start pixel \(\d+, \d+\) in frame 0; check") as err:
+        observe(clip_from_frames(frames, FPS), synthetic_scene(start_pixels=clip.pixels[0]))
+    assert "\n" not in str(err.value)

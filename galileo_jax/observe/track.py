@@ -173,6 +173,13 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
             # or where KLT lost the object and the colour tracker did not, or later (its frames
             # from there on are not measured)
             colour_lost = colour[i][3] if i in colour else -1
+            if i is not None and err.at_start and scene.objects[i].tracker == "auto" and i not in colour:
+                u, v = start[i]
+                raise TrackingError(f"object {i + 1}: it shows too little texture to follow by its features and "
+                                    "its colour does not stand out from the background, at its start pixel "
+                                    f"({u:.0f}, {v:.0f}) in frame {start_frame}; check camera.start_pixels, or "
+                                    "film it against a background of another colour", object_index=i,
+                                    at_start=True) from None
             if i is None or scene.objects[i].tracker != "auto" or i not in colour or \
                     (colour_lost >= 0 and not err.at_start and (err.frame is None or colour_lost <= err.frame)):
                 raise _in_scene(err, klt) from None
