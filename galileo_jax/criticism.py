@@ -705,9 +705,14 @@ def _describe(row: ResidualRow, min_displacement: float) -> str:
         if abs(do) > 1e-3 and np.sign(do) != np.sign(ds):
             return f"{who} moves the opposite way{along} to the simulation ({do:+.2f} m vs {ds:+.2f} m)"
         ratio = abs(do) / abs(ds)
-        if ratio >= 1:
-            return f"{who} travels {ratio:.1f}x farther{along} than simulated ({abs(do):.2f} m vs {abs(ds):.2f} m)"
-        return f"{who} travels only {ratio:.2f}x as far{along} as simulated ({abs(do):.2f} m vs {abs(ds):.2f} m)"
+        metres = f"({abs(do):.2f} m vs {abs(ds):.2f} m)"
+        if ratio >= 2:
+            return f"{who} travels {ratio:.1f}x farther{along} than simulated {metres}"
+        if ratio >= 1:  # a ratio near 1 in percent: "2.3% farther", not "1.0x farther"
+            return f"{who} travels {100 * (ratio - 1):.2g}% farther{along} than simulated {metres}"
+        if ratio > 0.5:
+            return f"{who} falls {100 * (1 - ratio):.2g}% short of the simulated distance{along} {metres}"
+        return f"{who} travels only {ratio:.2f}x as far{along} as simulated {metres}"
     d, v = row.mean_offset, row.sim_mean_velocity
     if abs(v) > REST_SPEED:
         word = "faster" if d * np.sign(v) > 0 else "slower"

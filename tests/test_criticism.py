@@ -312,6 +312,11 @@ def test_verdict_phrasing():
                         "(0.06 m vs 0.02 m)") and "chi-square p = 1e-5" in v
     short = row(structured=True, p_adjusted=1e-3, p_min=1e-5, p_runs=1e-5, obs_displacement=0.2, sim_displacement=0.8)
     assert "travels only 0.25x as far as simulated" in C.verdict([short])
+    # near 1 the ratio is said in percent (a foreign render's base fit: "1.0x farther" hid 2.3%)
+    near = row(structured=True, p_adjusted=1e-3, p_min=1e-5, p_runs=1e-5, obs_displacement=1.33, sim_displacement=1.30)
+    assert "object 1 travels 2.3% farther than simulated (1.33 m vs 1.30 m)" in C.verdict([near])
+    under = row(structured=True, p_adjusted=1e-3, p_min=1e-5, p_runs=1e-5, obs_displacement=1.2, sim_displacement=1.3)
+    assert "object 1 falls 7.7% short of the simulated distance (1.20 m vs 1.30 m)" in C.verdict([under])
     # an x-trace phase row is preferred to a y trace or "all", even with a larger p
     y_row = row(trace="object 1 y", axis="y", structured=True, p_min=1e-30, p_adjusted=1e-28, p_chi2=1e-30)
     all_row = row(phase="all", structured=True, p_min=1e-30, p_adjusted=1e-28, p_chi2=1e-30)
