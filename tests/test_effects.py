@@ -359,3 +359,36 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     assert not np.allclose(starts_seen[0][0], starts_seen[1][0]) and np.allclose(starts_seen[0][0], starts_seen[2][0])
     assert fit.search["loglik_search"] == pytest.approx(max(ll for _, _, ll in starts_seen))
     assert fit.loglik >= max(ll for _, _, ll in starts_seen) - 1e-6
+
+
+def test_nested_refit_never_tests_below_the_null():
+    """A refit whose fit log-likelihood rose but whose scaled LR on the test likelihood is
+    negative (one trace improved where its noise scale is large, another worsened where it is
+    small: the total sum of squares 925 -> 877, LR_scaled about -4) is tested at the null's
+    estimate with the effect neutral: LR 0, not supported, the parameter shown at its neutral
+    value with the reason."""
+    from types import SimpleNamespace
+
+    from galileo_jax.diagnosis import DiagnoseSettings, ModelFit, test_effect
+
+    effect = available_effects()["quadratic_drag"]
+    name = effect.params[0].name
+    groups = np.repeat([0, 1], 100)
+    r0 = np.where(groups == 0, 3.0, 0.5)
+    r1 = np.where(groups == 0, 2.9, 0.6)
+    union = SimpleNamespace(coords={effect.name: [0]}, engine="mujoco", residual_groups=lambda: groups)
+
+    def fit(r, names, value):
+        params = {"k1": {"mean": 0.2, "median": 0.2, "best": 0.2, "sd": 0.01, "interval90": [0.19, 0.21]}}
+        if value is not None:
+            params[name] = {"mean": value, "median": value, "best": value, "sd": 0.01, "interval90": [0.05, 0.1]}
+        return ModelFit("m", (), union, SimpleNamespace(names=names, fixed=()), {"parameters": params},
+                        -0.5 * float(r @ r), r, float(np.sqrt(np.mean(r ** 2))), [], {}, r)
+
+    current = fit(r0, ("k1",), None)
+    fits = [fit(r1, ("k1", name), 0.08)]
+    assert fits[0].loglik > current.loglik
+    test = test_effect(current, effect, fits, 0, 1e-3, DiagnoseSettings())
+    assert test["lr_scaled"] == 0.0 and test["lr"] == 0.0 and not test["supported"]
+    shown = fits[0].summary["parameters"][name]
+    assert shown["best"] == effect.params[0].neutral and "scaled likelihood ratio was -" in shown["note"]
