@@ -426,3 +426,23 @@ def test_object_neither_textured_nor_coloured_is_reported(clip):
                                             r"out .* start pixel \(\d+, \d+\) in frame 0; check") as err:
         observe(clip_from_frames(frames, FPS), synthetic_scene(start_pixels=clip.pixels[0]))
     assert "\n" not in str(err.value)
+
+
+def test_track_not_measured_in_its_anchor_frame_still_gives_positions(clip):
+    """A track without a measurement in the frame that anchors it to the scene's start
+    position (a colour track begun a few frames later) is anchored at its measured frame
+    nearest to it: positions, noise and release time come out finite (NaN there made every
+    position NaN, and the release-time fit raised a bare ValueError), and the same as a track
+    measured there, to the object's motion before that frame."""
+    from galileo_jax.observe.profile import observation_from_tracks
+    from galileo_jax.observe.tracks import Tracks
+
+    scene = synthetic_scene(start_pixels=clip.pixels[0])
+    N, n = clip.pixels.shape[:2]
+    full = Tracks(clip.pixels.copy(), np.ones((N, n), bool), np.ones((N, n), int), np.ones((N, n)))
+    late = full._replace(pixels=full.pixels.copy(), valid=full.valid.copy(), quality=full.quality.copy())
+    late.pixels[:3, 0], late.valid[:3, 0], late.quality[:3, 0] = np.nan, False, 0.0
+    ref, obs = observation_from_tracks(full, scene, FPS), observation_from_tracks(late, scene, FPS)
+    assert np.isfinite(obs.positions[3:]).all() and np.isfinite(obs.position_sd).all()
+    assert np.allclose(obs.positions[3:], ref.positions[3:], atol=1e-9)  # object 1 rests until frame 7
+    assert obs.release_time == pytest.approx(ref.release_time, abs=1e-4)  # 0.3% of a frame: 3 fewer samples

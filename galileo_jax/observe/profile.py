@@ -94,7 +94,8 @@ def estimate_release_time(s: np.ndarray, fps: float, sigma: float, s_max: float 
         tr0 = -icpt / slope if slope > 0 else t[k0] - 1 / fps
         a0 = 2 * max(slope, 1e-3) ** 2
     else:
-        tr0, a0 = t[k0] - 1 / fps, 2 * ss[-1] / max((tt[-1] - t[k0] + 1 / fps) ** 2, 1e-6)
+        # (a positive guess even where the last kept distance is not: it scales the solver's steps)
+        tr0, a0 = t[k0] - 1 / fps, max(2 * ss[-1] / max((tt[-1] - t[k0] + 1 / fps) ** 2, 1e-6), 1e-3)
     tr0 = float(np.clip(tr0, tt[0] - 2 / fps, t[k0]))
 
     def resid(p):
@@ -112,6 +113,20 @@ def _fps_of(clip: VideoClip, scene: Scene, fps: float | None) -> VideoClip:
     overridden = not (clip.fps == clip.container_fps)
     override = fps if fps is not None else (None if overridden else scene.video.fps)
     return clip.with_fps(override) if override is not None else clip
+
+
+def _anchor_pixels(pixels: np.ndarray, valid: np.ndarray, k: int) -> np.ndarray:
+    """(n, 2) each object's pixel in frame ``k``, or, where it is not measured there, in the
+    measured frame nearest to ``k`` (earlier first on a tie): a track that starts a few frames
+    later (a colour track begun where the object was first clear of a hand) has no pixel at
+    the anchor, and NaN there would make every position NaN."""
+    out = np.array(pixels[k], float)
+    for i in range(pixels.shape[1]):
+        if not (valid[k, i] and np.all(np.isfinite(out[i]))):
+            seen = np.flatnonzero(valid[:, i] & np.all(np.isfinite(pixels[:, i]), axis=-1))
+            if len(seen):
+                out[i] = pixels[seen[np.argmin(np.abs(seen - k) + 0.5 * (seen > k))], i]
+    return out
 
 
 def _positions(pixels: np.ndarray, start_px: np.ndarray, scene: Scene) -> np.ndarray:
@@ -212,7 +227,7 @@ def observation_from_tracks(tracks: Tracks | SceneTracks, scene: Scene, fps: flo
     valid = tracks.valid & (tracks.quality >= QUALITY_MIN)
     N, n = valid.shape
     times = np.arange(N) / fps
-    positions = _positions(pixels, pixels[anchor_frame], scene)
+    positions = _positions(pixels, _anchor_pixels(pixels, valid, anchor_frame), scene)
     calib, scale = calibration(scene.camera), scene.camera.scale
     sd = np.concatenate([_trace_sd(positions[:, i], pixels[:, i], valid[:, i], scale) for i in range(n)])
     moved, release = np.zeros(n, bool), None

@@ -156,7 +156,9 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     for i in range(n):
         if methods[i] == "auto":
             k = int(colour[i][4]) if i in colour else -1
-            plain = i in colour and colour[i][3] < 0 and k >= 0 and not has_texture(
+            # the colour track must also measure the start frame, where it anchors the track
+            at_start = i in colour and bool(colour[i][1][start_frame])
+            plain = at_start and colour[i][3] < 0 and k >= 0 and not has_texture(
                 frames[k], colour[i][0][k], wins[i].half,
                 wins[i].angle if k <= start_frame else _tilt(colour[i][0], k, wins[i].angle))
             methods[i] = "colour" if plain else "features"
