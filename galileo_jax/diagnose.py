@@ -86,7 +86,8 @@ def summary_text(diag, videos: list[Path]) -> str:
     lines = [f"galileo_jax diagnose: {what}", "",
              f"  base model ({ENGINE_NAMES[diag.fits[0].union.engine]}): RMSE {diag.fits[0].rmse:.3f} m/s "
              f"(noise floor {diag.noise_floor:.3f} m/s)",
-             f"  {diag.fits[0].criticism.get('verdict', '')}", ""]
+             f"  {diag.fits[0].criticism.get('verdict', '')}"]
+    lines += calibration_lines(diag) + [""]
     for rnd in diag.rounds:
         lines.append(f"  round {rnd['round']} (model: {rnd['base']}); threshold p < {rnd['threshold_p']:.3g}")
         if rnd["screen"]:
@@ -101,7 +102,9 @@ def summary_text(diag, videos: list[Path]) -> str:
         for nr in rnd.get("null_refit", []):
             lines.append(f"    the {nr['model']} model ({ENGINE_NAMES[nr['engine']]}), refitted from {nr['from_effect']}'s "
                          f"estimate, found a better optimum (log L {nr['loglik_before']:.1f} -> {nr['loglik_after']:.1f}, "
-                         f"RMSE {nr['rmse_before']:.4f} -> {nr['rmse_after']:.4f} m/s): the tests below are against it")
+                         f"RMSE {nr['rmse_before']:.4f} -> {nr['rmse_after']:.4f} m/s): the tests below are against it"
+                         + (f"; refitted from it, better: {', '.join(nr['alternatives_improved'])}"
+                            if nr.get("alternatives_improved") else ""))
         if rnd.get("adequate"):
             lines.append(f"    away from contact events the model fits to within "
                          f"{diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor (RMSE "
@@ -129,6 +132,25 @@ def summary_text(diag, videos: list[Path]) -> str:
         lines.append(f"  after adding: {d['verdict_final']}")
     lines.append("")
     return "\n".join(lines)
+
+
+def calibration_lines(diag) -> list[str]:
+    """One line per fitted model saying how large the calibration nuisances came out, e.g.
+    "calibration (base model): scale error +2.4% [+1.9, +3.0]% (allowed +-3%)"."""
+    cal = diag.calibration()
+    lines = []
+    for label in ("base", "final"):
+        if not cal[label] or (label == "final" and diag.final is diag.fits[0]):
+            continue
+        parts = []
+        for name, v in cal[label].items():
+            what = name.replace("scale_error", "scale error")
+            ci = v["interval90"]
+            ci = f" [{100 * ci[0]:+.1f}, {100 * ci[1]:+.1f}]%" if ci else ""
+            allowed = f" (allowed +-{100 * v['tolerance']:g}%)" if v.get("tolerance") else ""
+            parts.append(f"{what} {100 * v['best']:+.1f}%{ci}{allowed}")
+        lines.append(f"  calibration ({label} model): " + "; ".join(parts))
+    return lines
 
 
 def predictive_band(fit, key, n_draws: int = 32) -> list[np.ndarray]:

@@ -132,7 +132,7 @@ class ParamSpace:
             w = float(scene.simulation.release_window)
             names.append("dt_release"); lower.append(-w); upper.append(w)
             kinds.append("release"); objects.append(-1)
-        if scene.camera.scale_tolerance > 0:
+        if (scene.camera.scale_tolerance or 0.0) > 0:
             tol = float(scene.camera.scale_tolerance)
             names.append("scale_error"); lower.append(-tol); upper.append(tol)
             kinds.append("scale"); objects.append(-1)

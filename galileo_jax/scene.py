@@ -155,7 +155,13 @@ class Camera(_Strict):
     automatically. ``scale_tolerance`` (relative, e.g. 0.1 = 10%) says how uncertain the scale
     is (a scale read off a hand-held ruler, a reference that is not in the plane of motion):
     the fit then carries a nuisance ``scale_error`` uniform on +-tolerance, the observed
-    displacements being (1 + scale_error) times the true ones (0, the default: the scale is exact).
+    displacements being (1 + scale_error) times the true ones (0: the scale is exact). Unset
+    (None), ``fit`` takes the scale as exact and ``diagnose`` allows its own default
+    (:attr:`galileo_jax.diagnosis.DiagnoseSettings.scale_tolerance`, 3%): a few-percent scale
+    error is as large as the effects it looks for. With a perspective camera the tracked
+    surface (an object's front face) is nearer the camera than the plane of the objects'
+    centres, where the scale is measured; for motion parallel to the image that too is a
+    uniform scale error (a 6 cm cube 2.2 m away: ~1.4%), so the same nuisance covers it.
     """
 
     pixels_per_metre: PositiveFloat | None = None
@@ -164,7 +170,7 @@ class Camera(_Strict):
     roll_deg: float = Field(default=0.0, ge=-45, le=45)
     start_pixels: list[Pixel] | None = None
     foot_pixel: Pixel | None = None
-    scale_tolerance: float = Field(default=0.0, ge=0.0, le=0.3)
+    scale_tolerance: float | None = Field(default=None, ge=0.0, le=0.3)
 
     @model_validator(mode="after")
     def _check_scale(self) -> "Camera":

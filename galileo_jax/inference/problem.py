@@ -242,7 +242,7 @@ def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_bat
     simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.simulate.make_simulator`)."""
     early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
     length = _blocks(seconds + early, fps)
-    key = (scene_key(scene), float(scene.camera.scale_tolerance), float(fps), tuple(effects), length, int(max_batch),
+    key = (scene_key(scene), float(scene.camera.scale_tolerance or 0.0), float(fps), tuple(effects), length, int(max_batch),
            engine)
     if key in _ENGINES:
         _ENGINES.move_to_end(key)
