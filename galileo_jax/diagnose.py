@@ -128,6 +128,8 @@ def summary_text(diag, videos: list[Path]) -> str:
     lines.append("  " + d["message"])
     for msg in d["indistinguishable"]:
         lines.append("  " + msg)
+    for alt in d.get("calibration_alternatives", []):
+        lines.append("  " + alt["message"])
     if d["missing_effects"]:
         lines.append(f"  after adding: {d['verdict_final']}")
     lines.append("")

@@ -107,11 +107,67 @@ def _add_object_geom(body: mujoco.MjsBody, obj: SceneObject, name: str, rgba) ->
                   material=f"{name}_mat")
 
 
-def build_spec(scene: Scene, effects=()) -> mujoco.MjSpec:
+@dataclass(frozen=True)
+class WorldPhysics:
+    """Physics a rendered video may have that the fitted model does not (for ``synth`` only).
+
+    Real setups differ from the model in ways no parameter of it describes; videos rendered with
+    these test whether inference and model criticism hold on data the model cannot reproduce
+    exactly. The default is the model's own physics.
+
+    Attributes:
+        cone: friction cone of the object-surface contacts: ``"pyramidal"`` (the model's; MJX
+            needs it) or ``"elliptic"`` (MuJoCo's other, exact Coulomb cone).
+        ramp_thickness: thickness of the ramp in m: > 0 makes it a board (a box) lying on the
+            floor at its foot, its top face the sliding surface, so an object leaves it over an
+            edge and drops ``ramp_thickness * cos(theta)`` onto the floor; 0: the model's plane
+            through the foot line.
+    """
+
+    cone: str = "pyramidal"
+    ramp_thickness: float = 0.0
+
+    def __post_init__(self):
+        if self.cone not in ("pyramidal", "elliptic"):
+            raise ValueError(f"cone {self.cone!r}: give pyramidal or elliptic")
+        if not (math.isfinite(self.ramp_thickness) and 0.0 <= self.ramp_thickness <= 0.1):
+            raise ValueError(f"ramp thickness {self.ramp_thickness} m: give 0 to 0.1 m")
+
+    @property
+    def is_model(self) -> bool:
+        """True when this is the model's own physics."""
+        return self == WorldPhysics()
+
+
+def apply_world_physics(spec: mujoco.MjSpec, scene: Scene, world: WorldPhysics) -> None:
+    """Change a scene's :func:`build_spec` in place to ``world``'s physics (see
+    :class:`WorldPhysics`): the friction cone, and a ramp board of ``world.ramp_thickness`` m,
+    whose bottom face is the model's ramp plane (so its foot edge rests on the floor), with the
+    objects on the ramp lifted onto its top face."""
+    if world.cone == "elliptic":
+        spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    t = world.ramp_thickness
+    if t <= 0:
+        return
+    th = scene.ramp.angle
+    tangent = np.array([math.cos(th), 0.0, -math.sin(th)])
+    normal = np.array([math.sin(th), 0.0, math.cos(th)])
+    ramp = spec.geom("ramp")
+    ramp.type = mujoco.mjtGeom.mjGEOM_BOX
+    ramp.size = [scene.ramp.length / 2, scene.ramp.width / 2, t / 2]
+    ramp.pos = list(-0.5 * scene.ramp.length * tangent + 0.5 * t * normal)
+    for i in range(scene.n_objects):
+        if scene.placement(i) == "ramp":
+            body = spec.body(f"object{i + 1}")
+            body.pos = list(np.asarray(body.pos) + t * normal)
+
+
+def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None) -> mujoco.MjSpec:
     """Build the MuJoCo specification of a scene (ramp, floor, objects, contact pairs).
 
     ``effects``: :class:`~galileo_jax.effects.Effect` objects whose ``build`` hook changes
-    the structure (e.g. ``rolling``), applied last.
+    the structure (e.g. ``rolling``), applied last. ``world``: physics the model does not have
+    (:class:`WorldPhysics`, rendering only), applied before the effects.
 
     Returns:
         An uncompiled :class:`mujoco.MjSpec`; :func:`build_model` compiles it. Rendering code
@@ -134,16 +190,16 @@ def build_spec(scene: Scene, effects=()) -> mujoco.MjSpec:
     th = scene.ramp.angle
     L, W = scene.ramp.length, scene.ramp.width
     tangent = np.array([math.cos(th), 0.0, -math.sin(th)])
-    world = spec.worldbody
-    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, pos=[scene.floor.length / 2, 0, 0],
+    ground = spec.worldbody
+    ground.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, pos=[scene.floor.length / 2, 0, 0],
                    size=[scene.floor.length / 2, W / 2, 0.05], contype=0, conaffinity=0, material="surface_mat")
-    world.add_geom(name="ramp", type=mujoco.mjtGeom.mjGEOM_PLANE, pos=list(-0.5 * L * tangent),
+    ground.add_geom(name="ramp", type=mujoco.mjtGeom.mjGEOM_PLANE, pos=list(-0.5 * L * tangent),
                    quat=_rot_y(th), size=[L / 2, W / 2, 0.05], contype=0, conaffinity=0, material="surface_mat")
     # A solid block under the ramp, for looks only.
-    world.add_geom(name="ramp_block", type=mujoco.mjtGeom.mjGEOM_BOX, contype=0, conaffinity=0,
+    ground.add_geom(name="ramp_block", type=mujoco.mjtGeom.mjGEOM_BOX, contype=0, conaffinity=0,
                    pos=list(-0.5 * L * tangent + np.array([0.0, 0.0, -0.01 / math.cos(th)])),
                    quat=_rot_y(th), size=[L / 2, W / 2 - 1e-3, 0.01], rgba=[0.55, 0.45, 0.35, 1], group=1)
-    world.add_light(name="sun", pos=[0, -2, 3], dir=[0, 0.6, -0.8], diffuse=[0.8, 0.8, 0.8])
+    ground.add_light(name="sun", pos=[0, -2, 3], dir=[0, 0.6, -0.8], diffuse=[0.8, 0.8, 0.8])
 
     for i, obj in enumerate(scene.objects):
         pos, quat = object_start_pose(scene, i)
@@ -153,7 +209,7 @@ def build_spec(scene: Scene, effects=()) -> mujoco.MjSpec:
                          builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=list(rgba[:3]),
                          rgb2=[0.1 + 0.3 * c for c in rgba[:3]], width=64, height=64)
         spec.add_material(name=f"{name}_mat", textures=["", f"{name}_tex"], texuniform=False)
-        body = world.add_body(name=name, pos=list(pos), quat=quat)
+        body = ground.add_body(name=name, pos=list(pos), quat=quat)
         body.add_freejoint(name=f"{name}_free")
         _add_object_geom(body, obj, name, rgba)
 
@@ -166,25 +222,29 @@ def build_spec(scene: Scene, effects=()) -> mujoco.MjSpec:
     if scene.n_objects == 2:
         spec.add_pair(name="object1_object2", geomname1="object1", geomname2="object2", condim=1,
                       friction=[0.0, 0.0, 0.005, 0.0001, 0.0001])
+    if world is not None:
+        apply_world_physics(spec, scene, world)
     for effect in effects:
         if effect.build is not None:
             effect.build(spec, scene)
     return spec
 
 
-def build_model(scene: Scene, timestep: float | None = None, effects=()) -> tuple[mujoco.MjModel, ModelIndex]:
+def build_model(scene: Scene, timestep: float | None = None, effects=(),
+                world: WorldPhysics | None = None) -> tuple[mujoco.MjModel, ModelIndex]:
     """Compile the scene's MuJoCo model.
 
     Args:
         scene: the validated scene.
         timestep: physics timestep in s (default 1/240 s).
         effects: effects whose ``build`` hooks change the model's structure.
+        world: physics the model does not have (:class:`WorldPhysics`; rendering only).
 
     Returns:
         ``(model, index)``: the compiled :class:`mujoco.MjModel` and the :class:`ModelIndex`
         of the ids the simulator needs.
     """
-    spec = build_spec(scene, effects)
+    spec = build_spec(scene, effects, world)
     if timestep is not None:
         spec.option.timestep = timestep
     model = spec.compile()

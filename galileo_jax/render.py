@@ -536,7 +536,8 @@ def _dress_object(spec: mujoco.MjSpec, i: int, rgb, look: str) -> None:
 
 
 def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = False, effects=(), *,
-                       look: str = "checker", colours=None, backdrop: str = "plain", seed: int = 0) -> mujoco.MjModel:
+                       look: str = "checker", colours=None, backdrop: str = "plain", seed: int = 0,
+                       world=None) -> mujoco.MjModel:
     """Compile the scene's model with scenery, object looks, the front camera and optionally a hand.
 
     Args:
@@ -552,6 +553,8 @@ def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = F
         colours: (n_objects, 3) base RGB in [0, 1], or None (:func:`object_colours`).
         backdrop: ``"plain"`` (grey gradient wall) or ``"clutter"`` (:func:`clutter_texture`).
         seed: seed of the cluttered backdrop.
+        world: physics the model does not have (:class:`~galileo_jax.model.WorldPhysics`): a
+            ramp board is drawn as the box it is.
 
     Returns:
         The compiled :class:`mujoco.MjModel` (offscreen buffer sized to the view).
@@ -561,7 +564,7 @@ def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = F
     """
     check_choice(look, LOOKS, "look", "--look")
     check_choice(backdrop, BACKDROPS, "backdrop", "--backdrop")
-    spec = build_spec(scene, resolve_effects(list(effects)))
+    spec = build_spec(scene, resolve_effects(list(effects)), world)
     spec.option.timestep = timestep
     spec.visual.global_.offwidth = max(view.width, 64)
     spec.visual.global_.offheight = max(view.height, 64)

@@ -127,7 +127,7 @@ from galileo_jax.effects.runtime import (apply_c_model, c_step, effect_param_nam
                                          surface_frictions)
 from galileo_jax.cli import OneLineParser  # noqa: E402
 from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
-from galileo_jax.model import ModelIndex, build_model, object_start_pose  # noqa: E402
+from galileo_jax.model import ModelIndex, WorldPhysics, build_model, object_start_pose  # noqa: E402
 from galileo_jax.scene import Scene, Video, load_scene, save_scene  # noqa: E402
 from galileo_jax.simulate import PhysParams, physics_timestep, scene_effects  # noqa: E402
 
@@ -543,7 +543,8 @@ def _centres(qpos: np.ndarray, index: ModelIndex) -> np.ndarray:
 
 def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: int,
                     n_frames: int | None = None, max_seconds: float = MAX_SECONDS,
-                    settle_seconds: float = SETTLE_SECONDS, effects=(), effect_values=None) -> Motion:
+                    settle_seconds: float = SETTLE_SECONDS, effects=(), effect_values=None,
+                    world: WorldPhysics | None = None) -> Motion:
     """Simulate the scene in C MuJoCo and sample it at the video's frames.
 
     Args:
@@ -562,6 +563,8 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
         effect_values: the effects' parameter values: a flat vector ordered as
             :func:`~galileo_jax.effects.runtime.effect_param_names`, or a dict by parameter
             name; ``None``: ``params.effects``, else the neutral values.
+        world: physics the fitted model does not have (:class:`~galileo_jax.model.WorldPhysics`:
+            elliptic friction cones, a ramp board with an edge); ``None``: the model's own.
 
     With effects, the model is built with their ``build`` hooks, masses and frictions are set
     as without, and at release the effects' model updates and release velocities are applied
@@ -582,7 +585,7 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
     values = _effect_vector(effs, params, effect_values)
     substeps = scene.simulation.substeps
     dt = physics_timestep(fps, substeps)
-    model, index = build_model(scene, timestep=dt, effects=effs)
+    model, index = build_model(scene, timestep=dt, effects=effs, world=world)
     data = mujoco.MjData(model)
     set_physics(model, data, index, params)
     mujoco.mj_forward(model, data)
@@ -791,7 +794,7 @@ def write_video(path: Path, frames: Iterator[np.ndarray], fps: float, size: tupl
 
 def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.View, *, noise_sd: float,
                  hand: bool, seed: int, video: str, effects=(), look: str = "checker", colours=None, blur: int = 0,
-                 shutter: float = 0.5, backdrop: str = "plain") -> dict:
+                 shutter: float = 0.5, backdrop: str = "plain", world: WorldPhysics | None = None) -> dict:
     """The ground-truth JSON record of a rendered video.
 
     Keys: ``video`` (file name), ``scene`` (scene name), ``m1, k1, m2, k2`` (those of the
@@ -814,7 +817,8 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
     (radius for cylinders and spheres) along the body's y axis, projected; equal to ``pixels``
     in orthographic views) and, when ``blur`` >= 2, ``pixels_exposure`` (N x n_objects x
     [u, v]: the mean over each frame's sub-frames of the projected centre, what the centroid
-    of a blurred image sees).
+    of a blurred image sees), ``world`` ({``cone``, ``ramp_thickness`` (m)}: the physics the
+    fitted model does not have, :class:`~galileo_jax.model.WorldPhysics`).
 
     ``effects``: the simulated effects (names or Effects, the scene's own included), in the
     order of ``params.effects``. ``colours``: as :func:`galileo_jax.render.object_colours`.
@@ -844,6 +848,7 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
         "camera": {"projection": view.projection, "distance_m": view.distance if view.perspective else None,
                    "fovy_deg": view.fovy if view.perspective else None, "direction": view.direction},
         "blur": blur, "shutter": shutter, "backdrop": backdrop,
+        "world": {"cone": (world or WorldPhysics()).cone, "ramp_thickness": (world or WorldPhysics()).ramp_thickness},
         "pixels_front": _pixels(view, motion.qpos, motion.qpos_adr, render.front_offsets(scene, view)),
     })
     if blur >= 2:
@@ -906,7 +911,7 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
                  rest_frames: int | None = None, seed: int = 0, progress: bool = True, effects=None,
                  look: str = "checker", colours=None, camera: str = "orthographic",
                  camera_distance: float = render.CAMERA_DISTANCE, direction: str = "right", blur: int = 0,
-                 shutter: float = 0.5, backdrop: str = "plain") -> dict:
+                 shutter: float = 0.5, backdrop: str = "plain", world: WorldPhysics | None = None) -> dict:
     """Simulate and render one ramp video with its calibrated scene file and ground truth.
 
     Args:
@@ -942,6 +947,10 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
             :meth:`Motion.qpos_at`) and average them; 0 (or 1): none.
         shutter: exposure time as a fraction of the frame interval (with ``blur``).
         backdrop: ``"plain"`` (grey wall) or ``"clutter"`` (posters, shelves, cables, blobs).
+        world: physics the fitted model does not have (:class:`~galileo_jax.model.WorldPhysics`:
+            elliptic friction cones, a ramp board of some thickness with an edge at its foot),
+            simulated and drawn; the written scene file does not know of it. ``None``: the
+            model's own physics.
 
     Returns:
         The truth record (as written to ``<stem>.truth.json``; see :func:`truth_record`).
@@ -961,15 +970,16 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
     check_applicable(effs, scene)
     phys = resolve_params(scene, params, effs)
     n_frames = None if duration is None else int(round(duration * fps))
-    motion = simulate_motion(scene, phys, fps, rest_frames, n_frames, effects=effs)
+    motion = simulate_motion(scene, phys, fps, rest_frames, n_frames, effects=effs, world=world)
     if hand and n_frames is None:  # let the hand leave the frame before the video ends
         min_frames = rest_frames + int(math.ceil((render.HAND_EXIT_TIME + 0.1) * fps))
         if motion.n_frames < min_frames:
-            motion = simulate_motion(scene, phys, fps, rest_frames, min_frames, effects=effs)
+            motion = simulate_motion(scene, phys, fps, rest_frames, min_frames, effects=effs, world=world)
     view = render.frame_view(scene, motion.positions, width, height, projection=camera, distance=camera_distance,
                              direction=direction)
     model = render.build_render_model(scene, view, physics_timestep(fps, scene.simulation.substeps), hand=hand,
-                                      effects=effs, look=look, colours=colours, backdrop=backdrop, seed=seed)
+                                      effects=effs, look=look, colours=colours, backdrop=backdrop, seed=seed,
+                                      world=world)
     times = exposure_times(motion.n_frames, fps, blur, shutter)
     hand_pos = hand_quat = None
     if hand:
@@ -979,7 +989,8 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
                            np.random.default_rng(seed))
     container_fps = write_video(out_path, frames, fps, (width, height), motion.n_frames, progress)
     truth = truth_record(scene, phys, motion, view, noise_sd=noise_sd, hand=hand, seed=seed, video=out_path.name,
-                         effects=effs, look=look, colours=colours, blur=blur, shutter=shutter, backdrop=backdrop)
+                         effects=effs, look=look, colours=colours, blur=blur, shutter=shutter, backdrop=backdrop,
+                         world=world)
     yaml_path = out_path.with_suffix(".yaml")
     tmp = _temp_path(yaml_path)
     try:
@@ -1041,6 +1052,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="exposure as a fraction of the frame interval, in (0, 1] (default 0.5; with --blur)")
     p.add_argument("--backdrop", choices=render.BACKDROPS, default="plain",
                    help="backdrop wall: plain grey (default) or clutter (posters, shelves, cables, blobs)")
+    p.add_argument("--cone", choices=("pyramidal", "elliptic"), default="pyramidal",
+                   help="friction cone of the simulated contacts: pyramidal (default, the fitted model's) or "
+                        "elliptic (physics the model does not have, for testing on videos it cannot reproduce)")
+    p.add_argument("--ramp-thickness", type=float, default=0.0, metavar="M",
+                   help="simulate the ramp as a board this thick (m) whose foot edge rests on the floor, so objects "
+                        "drop over an edge onto the floor; the written scene file does not know of it (default 0: "
+                        "the fitted model's ramp plane)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -1160,6 +1178,10 @@ def main(argv: list[str] | None = None) -> int:
     style = dict(look=args.look, colours=args.colour, camera=args.camera, camera_distance=args.distance,
                  direction=_direction(args), blur=args.blur, shutter=args.shutter, backdrop=args.backdrop)
     _check_style(scene, **style)
+    try:
+        world = WorldPhysics(cone=args.cone, ramp_thickness=args.ramp_thickness)
+    except ValueError as err:
+        raise GalileoError(f"{err} (--cone, --ramp-thickness)") from None
     if args.random and effs:  # the draws simulate the video: check its options first
         _check_options(args.fps, args.duration, args.width, args.height, args.noise, rest_frames)
     for i, path in enumerate(paths):
@@ -1173,7 +1195,7 @@ def main(argv: list[str] | None = None) -> int:
         truth = render_video(scene, params, path, fps=args.fps, duration=args.duration, width=args.width,
                              height=args.height, noise_sd=args.noise, hand=args.hand,
                              rest_frames=rest_frames, seed=args.seed + i,
-                             progress=not args.quiet, effects=effect_names, **style)
+                             progress=not args.quiet, effects=effect_names, world=world, **style)
         values = ", ".join(f"{k}={truth[k]:.4g}" for k in names if k in truth)
         hidden = f" (hidden: {', '.join(truth['hidden_effects'])})" if truth["hidden_effects"] else ""
         print(f"{path}: {truth['n_frames']} frames at {truth['fps']:g} fps, {values}{hidden}")

@@ -456,3 +456,64 @@ def test_diagnose_fits_a_scale_error_before_blaming_physics():
     exact = diagnose(scene, obs, dataclasses.replace(settings, scale_tolerance=0.0))
     assert "scale_error" not in exact.fits[0].summary["parameters"]
     assert exact.decision["missing_effects"], exact.decision["message"]
+
+
+def test_a_ramp_friction_is_mimicked_by_its_equivalent_ramp_angle_error():
+    """equivalent_angle_error: object 1 sliding at the stated 20 deg with ramp friction k + dk
+    (C MuJoCo, the ramp_friction effect) moves as at 20 deg + delta with friction k, to within
+    0.5 mm over 0.6 s; the report says whether delta is within the angle tolerance."""
+    from types import SimpleNamespace
+
+    from galileo_jax.diagnosis import angle_alternative, equivalent_angle_error
+    from galileo_jax.synth import resolve_params, simulate_motion
+
+    k, dk = 0.2, -0.06
+    delta = equivalent_angle_error(math.radians(20.0), k, dk)
+    assert math.degrees(delta) == pytest.approx(3.22, abs=0.01)
+    stated, steeper = _scene(20.0, two=False, start=1.2), _scene(20.0 + math.degrees(delta), two=False, start=1.2)
+    a = simulate_motion(stated, resolve_params(stated, {"m1": 0.5, "k1": k, "dk_ramp": dk}, ("ramp_friction",)),
+                        60.0, 2, n_frames=38, effects=("ramp_friction",))
+    b = simulate_motion(steeper, resolve_params(steeper, {"m1": 0.5, "k1": k}), 60.0, 2, n_frames=38)
+    travel = [np.linalg.norm(m.positions[:, 0] - m.positions[0, 0], axis=-1) for m in (a, b)]
+    assert travel[0][-1] > 0.3  # still on the ramp, and moving
+    np.testing.assert_allclose(travel[0], travel[1], atol=5e-4)
+
+    def fit(dk_value):
+        return SimpleNamespace(summary={"parameters": {"k1": {"best": k}, "dk_ramp": {"best": dk_value}}})
+
+    far = angle_alternative(fit(dk), stated, 1.0)
+    assert not far["within_tolerance"] and "3.2 deg steeper" in far["message"] and "likelier" in far["message"]
+    near = angle_alternative(fit(0.015), stated, 1.0)
+    assert near["within_tolerance"] and near["angle_error_deg"] < 0 and "may be an error in the ramp angle" in near["message"]
+    assert angle_alternative(SimpleNamespace(summary={"parameters": {"k1": {"best": k}}}), stated, 1.0) is None
+
+
+def test_a_stuck_base_fit_is_fitted_again_before_effects_are_screened(monkeypatch):
+    """``base_retry``: a base fit that misfits (here forced: one random start, one LM step) is
+    fitted once more from twice the starts before any effect is screened, so a clean video gets
+    "no missing effect" without refitting candidates; without the retry the candidates are
+    screened and refitted. (C MuJoCo, one object, short searches.)"""
+    from galileo_jax import diagnosis as D
+    from galileo_jax.inference.problem import simulated_observation
+
+    scene = _scene(two=False, start=0.5)
+    obs = simulated_observation(scene, PhysParams(jnp.array([0.5]), jnp.array([0.2])), fps=30.0, duration=1.6,
+                                release_time=0.2, position_sd=1e-3, seed=3)
+    settings = D.DiagnoseSettings(candidates=("initial_push",), base_starts=2, base_screen=32, refit_search=5,
+                                  search_generations_c=5, winner_search=0)
+    real, calls = D.fit_model, []
+
+    def first_one_stuck(union, free, s, key, **kw):
+        calls.append(kw.get("starts"))
+        if len(calls) == 1:  # the first base fit: one random start, one step
+            return real(union, free, dataclasses.replace(s, max_steps=1), jax.random.PRNGKey(5), starts=1, screen=1)
+        return real(union, free, s, key, **kw)
+
+    monkeypatch.setattr(D, "fit_model", first_one_stuck)
+    diag = D.diagnose(scene, obs, settings)
+    assert calls[:2] == [None, 2 * settings.base_starts]
+    assert diag.decision["missing_effects"] == [] and diag.rounds[-1]["adequate"], diag.decision["message"]
+    assert not diag.rounds[-1]["refits"] and "round1_refits_s" not in diag.timings
+    calls.clear()
+    plain = D.diagnose(scene, obs, dataclasses.replace(settings, base_retry=False))
+    assert 2 * settings.base_starts not in calls[:2] and plain.rounds[0]["refits"]  # the candidates were refitted

@@ -47,7 +47,7 @@ from galileo_jax.calibration import calibration
 from galileo_jax.effects import get_effect
 from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
-from galileo_jax.model import model_index
+from galileo_jax.model import WorldPhysics, model_index
 from galileo_jax.observation import profile_from_positions
 from galileo_jax.scene import load_scene, scene_from_dict
 from galileo_jax.simulate import PhysParams, make_simulator, scene_effects, steps_needed, velocity_profile
@@ -211,6 +211,8 @@ def test_resolve_params_errors(scene):
     (["--scene", str(SCENE), "--m1", "abc", "--out", "x.mp4"], "invalid float"),
     (["--scene", str(SCENE), "--random", "2", "--out", "x.mp4"], "folder"),
     (["--scene", str(SCENE), "--random", "1", "--fps", "0", "--out", "d"], "--fps"),
+    (["--scene", str(SCENE), "--random", "1", "--ramp-thickness", "0.5", "--out", "d"], "--ramp-thickness"),
+    (["--scene", str(SCENE), "--random", "1", "--cone", "round", "--out", "d"], "--cone"),
 ])
 def test_cli_bad_input_is_one_line(args, message, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
@@ -220,6 +222,31 @@ def test_cli_bad_input_is_one_line(args, message, tmp_path, monkeypatch, capsys)
     assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err
     assert message in err
     assert not list(tmp_path.rglob("*.mp4"))
+
+
+# --------------------------------------------------------------------------- physics the model lacks
+def test_world_physics_board_and_elliptic_cone(scene):
+    """A ramp board 15 mm thick lifts object 1 by its thickness along the ramp's normal; on it
+    object 1 slides with the closed-form a = g (sin - k cos) (the elliptic cone is Coulomb's
+    exact one), then drops over the board's edge to the floor (centre at h / 2 again)."""
+    t, th, k = 0.015, scene.ramp.angle, PARAMS["k1"]
+    phys = synth.resolve_params(scene, PARAMS)
+    world = WorldPhysics(cone="elliptic", ramp_thickness=t)
+    plain = synth.simulate_motion(scene, phys, 240.0, 3, n_frames=40)
+    board = synth.simulate_motion(scene, phys, 240.0, 3, n_frames=400, world=world)
+    lift = board.positions[0, 0] - plain.positions[0, 0]
+    np.testing.assert_allclose(lift, [t * math.sin(th), t * math.cos(th)], atol=1e-4)
+    s = np.linalg.norm(board.positions[:, 0] - board.positions[0, 0], axis=-1)
+    tt = np.arange(len(s)) / 240.0
+    sliding = (s > 0.005) & (s < 0.25)
+    accel = 2.0 * np.polyfit(tt[sliding], s[sliding], 2)[0]
+    expected = scene.gravity * (math.sin(th) - k * math.cos(th))
+    assert accel == pytest.approx(expected, rel=0.02)
+    h = scene.objects[0].height
+    assert board.positions[-1, 0, 1] == pytest.approx(h / 2, abs=1e-3)  # on the floor, past the edge
+    assert np.max(board.positions[:, 0, 0]) > 0.05
+    with pytest.raises(ValueError, match="cone"):
+        WorldPhysics(cone="round")
 
 
 # --------------------------------------------------------------------------- hidden effects
