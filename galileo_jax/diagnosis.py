@@ -1244,7 +1244,8 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         current = fits[win["fit_index"]]
         final_index = win["fit_index"]
     timings["total_s"] = time.perf_counter() - t0
-    decision = _decision(fits, rounds, added, final_index, floor, threshold, settings.adequate_ratio)
+    decision = _decision(fits, rounds, added, final_index, floor, threshold, settings.adequate_ratio,
+                         settings.min_rmse_drop)
     angle = angle_alternative(fits[final_index], scenes[0], settings.angle_tolerance_deg) if added else None
     decision["calibration_alternatives"] = [angle] if angle else []
     return Diagnosis(scenes, observations, floor, fits, rounds, decision, timings)
@@ -1343,8 +1344,9 @@ def angle_alternative(fit: "ModelFit", scene: Scene, tolerance_deg: float) -> di
             "within_tolerance": within, "message": message}
 
 
-def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio) -> dict:
+def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio, min_rmse_drop=0.10) -> dict:
     base, final = fits[0], fits[final_index]
+    unexplained = False
     if not added and rounds and rounds[-1].get("adequate"):
         r = rounds[-1]
         message = (f"No missing effect: away from contact events the model already fits to within {adequate_ratio:g}x "
@@ -1357,13 +1359,22 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
             best = min(rounds[0]["refits"], key=lambda x: x["p_value"])
         why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} vs threshold {threshold:.2g}, "
                f"RMSE drop {100 * best['rmse_drop']:.0f}%)") if best else ""
-        message = "No missing effect: no candidate improves the fit beyond chance" + why + "."
+        ratio = base.rmse / floor if floor > 0 else float("nan")
+        unexplained = bool(ratio > adequate_ratio)
+        if unexplained:  # the model misfits, and no candidate says why: say both
+            message = (f"No candidate effect explains the misfit: the model misfits at {ratio:.1f}x the noise floor "
+                       f"(RMSE {base.rmse:.4f} m/s, floor {floor:.4f} m/s), and no candidate both passes its test and "
+                       f"lowers the RMSE by {100 * min_rmse_drop:.0f}%{why}. Something none of the candidates "
+                       "describes is missing (or a calibration error beyond its tolerance): see where the residuals "
+                       "sit (residuals_base.png).")
+        else:
+            message = "No missing effect: no candidate improves the fit beyond chance" + why + "."
     else:
         message = (f"Missing effect: {' then '.join(added)}. RMSE {base.rmse:.3f} -> {final.rmse:.3f} m/s "
                    f"({base.rmse / max(final.rmse, 1e-12):.1f}x lower; noise floor {floor:.3f} m/s).")
     indist = [r["indistinguishable"]["message"] for r in rounds if r.get("indistinguishable")]
     return {"missing_effects": added, "final_model": final.name, "final_index": final_index,
-            "message": message, "indistinguishable": indist,
+            "message": message, "unexplained_misfit": unexplained, "indistinguishable": indist,
             "rmse_base": base.rmse, "rmse_final": final.rmse, "noise_floor": floor,
             "rmse_ratio_to_floor": final.rmse / floor if floor > 0 else None, "adequate_ratio": adequate_ratio,
             "verdict_base": base.criticism.get("verdict"), "verdict_final": final.criticism.get("verdict"),

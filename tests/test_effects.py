@@ -517,3 +517,23 @@ def test_a_stuck_base_fit_is_fitted_again_before_effects_are_screened(monkeypatc
     calls.clear()
     plain = D.diagnose(scene, obs, dataclasses.replace(settings, base_retry=False))
     assert 2 * settings.base_starts not in calls[:2] and plain.rounds[0]["refits"]  # the candidates were refitted
+
+
+def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
+    """A base model at 6x the noise floor whose candidates all fail (a strong test but a 1% RMSE
+    drop: the video of a ramp board with an edge, which no candidate describes) is reported as
+    an unexplained misfit, not as "no missing effect"; at 1.1x the floor it is "no missing effect"."""
+    from types import SimpleNamespace
+
+    from galileo_jax.diagnosis import _decision
+
+    def fits(rmse):
+        return [SimpleNamespace(name="base", rmse=rmse, criticism={"verdict": "fails on the ramp"})]
+
+    rounds = [{"refits": [{"effect": "quadratic_drag", "p_value": 1e-35, "rmse_drop": 0.01}], "adequate": False}]
+    d = _decision(fits(0.024), rounds, [], 0, 0.004, 0.008, 1.3)
+    assert d["unexplained_misfit"] and d["missing_effects"] == []
+    assert d["message"].startswith("No candidate effect explains the misfit: the model misfits at 6.0x the noise floor")
+    assert "quadratic_drag: p = 1e-35" in d["message"] and "lowers the RMSE by 10%" in d["message"]
+    d = _decision(fits(0.0044), rounds, [], 0, 0.004, 0.008, 1.3)
+    assert not d["unexplained_misfit"] and d["message"].startswith("No missing effect")
