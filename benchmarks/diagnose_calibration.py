@@ -233,12 +233,14 @@ def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> f
 
 
 def unexplained(record: dict) -> bool:
-    """No effect named though the base model misfits beyond 1.3x the floor (the decision's
-    ``unexplained_misfit``; derived for records written before it existed)."""
+    """No effect named though the base model misfits beyond 1.3x the floor with structured
+    residuals (the decision's ``unexplained_misfit``; derived for records written before it
+    existed)."""
     if "unexplained_misfit" in record:
         return bool(record["unexplained_misfit"])
     return (record["named_first"] is None and "already fits" not in record["decision"]
-            and record["rmse_base"] > 1.3 * record["noise_floor"])
+            and record["rmse_base"] > 1.3 * record["noise_floor"]
+            and "look like noise" not in (record.get("verdict_base") or ""))
 
 
 def summarize(records: list[dict]) -> dict:

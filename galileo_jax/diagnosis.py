@@ -1360,15 +1360,20 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
         why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} vs threshold {threshold:.2g}, "
                f"RMSE drop {100 * best['rmse_drop']:.0f}%)") if best else ""
         ratio = base.rmse / floor if floor > 0 else float("nan")
-        unexplained = bool(ratio > adequate_ratio)
-        if unexplained:  # the model misfits, and no candidate says why: say both
+        # the model misfits (beyond the adequacy bound, with residuals its criticism finds
+        # structured), and no candidate says why: say both. Residuals that look like noise at a
+        # ratio above the bound are the simulator's own roughness at contact events, not a misfit.
+        unexplained = bool(ratio > adequate_ratio) and not base.criticism.get("looks_like_noise", False)
+        if unexplained:
             message = (f"No candidate effect explains the misfit: the model misfits at {ratio:.1f}x the noise floor "
                        f"(RMSE {base.rmse:.4f} m/s, floor {floor:.4f} m/s), and no candidate both passes its test and "
                        f"lowers the RMSE by {100 * min_rmse_drop:.0f}%{why}. Something none of the candidates "
                        "describes is missing (or a calibration error beyond its tolerance): see where the residuals "
                        "sit (residuals_base.png).")
         else:
-            message = "No missing effect: no candidate improves the fit beyond chance" + why + "."
+            noise = (f"; the residuals look like noise at {ratio:.1f}x the noise floor"
+                     if ratio > adequate_ratio else "")
+            message = "No missing effect: no candidate improves the fit beyond chance" + why + noise + "."
     else:
         message = (f"Missing effect: {' then '.join(added)}. RMSE {base.rmse:.3f} -> {final.rmse:.3f} m/s "
                    f"({base.rmse / max(final.rmse, 1e-12):.1f}x lower; noise floor {floor:.3f} m/s).")

@@ -452,7 +452,9 @@ def test_diagnose_fits_a_scale_error_before_blaming_physics():
     cal = diag.calibration()["base"]["scale_error"]
     assert cal["tolerance"] == settings.scale_tolerance
     assert cal["interval90"][0] < stretch - 1.0 < cal["interval90"][1] and abs(cal["best"] - 0.025) < 0.003
-    assert "calibration (base model): scale error +2.5%" in summary_text(diag, [Path("v.mp4")])
+    text = summary_text(diag, [Path("v.mp4")])
+    assert f"calibration (base model): scale error {100 * cal['best']:+.1f}%" in text
+    assert "No missing effect" in text and "No candidate effect explains" not in text
     exact = diagnose(scene, obs, dataclasses.replace(settings, scale_tolerance=0.0))
     assert "scale_error" not in exact.fits[0].summary["parameters"]
     assert exact.decision["missing_effects"], exact.decision["message"]
@@ -537,3 +539,9 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     assert "quadratic_drag: p = 1e-35" in d["message"] and "lowers the RMSE by 10%" in d["message"]
     d = _decision(fits(0.0044), rounds, [], 0, 0.004, 0.008, 1.3)
     assert not d["unexplained_misfit"] and d["message"].startswith("No missing effect")
+    # above the bound, residuals the criticism finds noise-like (the simulator's roughness at
+    # contact events) are no unexplained misfit; the message says the ratio
+    noisy = [SimpleNamespace(name="base", rmse=0.008, criticism={"verdict": "look like noise", "looks_like_noise": True})]
+    d = _decision(noisy, rounds, [], 0, 0.004, 0.008, 1.3)
+    assert not d["unexplained_misfit"] and d["message"].startswith("No missing effect")
+    assert "look like noise at 2.0x the noise floor" in d["message"]
