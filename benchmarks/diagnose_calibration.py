@@ -26,7 +26,10 @@ Two families of videos (``--family``):
   pixel noise SD 1.5-3, the hand in every other video, either direction, and effects of the
   sizes real ones have (:func:`realistic_effect_values`). The scene file is the one a user would
   write (no calibration tolerance): diagnose's default calibration nuisances are what cope with
-  the scale error.
+  the scale error. The board's thickness is stated in it as measured with a ruler (to the mm,
+  :func:`stated_scene`);
+* ``foreign_board_unstated``: the same videos with a scene file that leaves the board out (a
+  flush ramp): what happens when a user does not describe their setup.
 
 Resumable: each video's record is written to ``<out>/<effect>_<i>.json`` and skipped when
 present. The summary goes to ``benchmarks/results/diagnose_calibration.{md,json}``. The
@@ -151,7 +154,17 @@ def render_foreign(scene_path: Path, effect: str, i: int, work: Path, seed: int)
 
 
 #: Renderer of each family of videos.
-FAMILIES = {"ours": render_one, "foreign": render_foreign}
+FAMILIES = {"ours": render_one, "foreign": render_foreign, "foreign_board_unstated": render_foreign}
+
+
+def stated_scene(scene, family: str, truth: dict):
+    """The scene file a user of ``family`` writes: for ``foreign``, the ramp board's thickness
+    measured with a ruler (the true one rounded to the mm) in ``ramp.thickness``; for
+    ``foreign_board_unstated`` (and ``ours``) the scene as rendered (a flush ramp)."""
+    t = (truth.get("world") or {}).get("ramp_thickness", 0.0)
+    if family != "foreign" or not t:
+        return scene
+    return scene.model_copy(update={"ramp": scene.ramp.model_copy(update={"thickness": round(float(t), 3)})})
 
 
 def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family: str = "ours") -> dict:
@@ -166,7 +179,7 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
     params = {k: truth[k] for k in ("m1", "k1", "m2", "k2") if k in truth}
     for name in effects:
         params.update(truth["effects"][name])
-    rendered_scene = load_scene(video.with_suffix(".yaml"))
+    rendered_scene = stated_scene(load_scene(video.with_suffix(".yaml")), family, truth)
     clip = read_video(video, fps_override=rendered_scene.video.fps)
     obs = observe(clip, rendered_scene, progress=False)
     t1 = time.perf_counter()
@@ -179,6 +192,7 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
     rank = next((k + 1 for k, r in enumerate(screen) if r["effect"] == effect), None)
     return {"effect": effect, "index": i, "family": family, "truth": params,
             "unexplained_misfit": bool(d.get("unexplained_misfit", False)),
+            "stated_ramp_thickness": rendered_scene.ramp.thickness,
             "calibration": diag.calibration(), "world": truth.get("world"), "decision": d["message"], "named_first": first,
             "correct": (first == effect) if effect != "none" else (first is None),
             "tied_with_truth": effect in tied, "tied": tied,
@@ -355,8 +369,9 @@ def write_tables(work: Path, family: str = "ours") -> None:
     machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}"
     write_atomic(RESULTS / f"{stem}.json", json.dumps({"machine": machine, "summary": summary,
                                                                    "records": records}, indent=1, default=float))
-    title = {"ours": "rendered videos", "foreign": "foreign renders: perspective camera, elliptic friction cone, "
-             "ramp board with an edge, realistic effect sizes"}[family]
+    foreign = "foreign renders: perspective camera, elliptic friction cone, ramp board with an edge, realistic effect sizes"
+    title = {"ours": "rendered videos", "foreign": foreign + "; the scene file states the board's thickness",
+             "foreign_board_unstated": foreign + "; the scene file leaves the board out"}[family]
     lines = [f"# diagnose calibration ({title}; scene ramp_20, rolling: roll_30)", "", f"machine: {machine}", "",
              f"Command: `python benchmarks/diagnose_calibration.py --family {family}` (resumable). 'named correctly': the hidden effect "
              "is the one named first (none: 'no missing effect'); 'or tied': named first, or reported as "

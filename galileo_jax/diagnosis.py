@@ -1246,6 +1246,10 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
     timings["total_s"] = time.perf_counter() - t0
     decision = _decision(fits, rounds, added, final_index, floor, threshold, settings.adequate_ratio,
                          settings.min_rmse_drop)
+    if decision["unexplained_misfit"] and any(sc.ramp.thickness == 0 for sc in scenes):
+        # the one misfit we know real setups have and no candidate describes: a board's edge
+        decision["message"] += (" If the ramp is a board lying on the floor, the step at its foot is such a thing: "
+                                "state the board's thickness (ramp.thickness in the scene file) and run again.")
     angle = angle_alternative(fits[final_index], scenes[0], settings.angle_tolerance_deg) if added else None
     decision["calibration_alternatives"] = [angle] if angle else []
     return Diagnosis(scenes, observations, floor, fits, rounds, decision, timings)

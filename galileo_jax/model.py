@@ -80,8 +80,9 @@ def object_poses(index: ModelIndex, qpos, xp=np):
 def object_start_pose(scene: Scene, i: int) -> tuple[np.ndarray, list[float]]:
     """Centre position (3,) in m and orientation quaternion (4,) of object ``i`` at rest.
 
-    Object on the ramp: centre = -s t + (h/2) n with t = (cos, 0, -sin) theta the downhill
-    tangent and n = (sin, 0, cos) theta the surface normal; on the floor: (s, 0, h/2).
+    Object on the ramp: centre = -s t + (h/2 + d) n with t = (cos, 0, -sin) theta the downhill
+    tangent, n = (sin, 0, cos) theta the surface normal and d the ramp board's thickness
+    (``scene.ramp.thickness``, 0 for a flush ramp); on the floor: (s, 0, h/2).
     """
     obj = scene.objects[i]
     s, h = obj.start, obj.height
@@ -89,7 +90,7 @@ def object_start_pose(scene: Scene, i: int) -> tuple[np.ndarray, list[float]]:
         th = scene.ramp.angle
         t = np.array([math.cos(th), 0.0, -math.sin(th)])
         n = np.array([math.sin(th), 0.0, math.cos(th)])
-        return -s * t + 0.5 * h * n, _rot_y(th)
+        return -s * t + (0.5 * h + scene.ramp.thickness) * n, _rot_y(th)
     return np.array([s, 0.0, 0.5 * h]), [1.0, 0.0, 0.0, 0.0]
 
 
@@ -118,10 +119,11 @@ class WorldPhysics:
     Attributes:
         cone: friction cone of the object-surface contacts: ``"pyramidal"`` (the model's; MJX
             needs it) or ``"elliptic"`` (MuJoCo's other, exact Coulomb cone).
-        ramp_thickness: thickness of the ramp in m: > 0 makes it a board (a box) lying on the
-            floor at its foot, its top face the sliding surface, so an object leaves it over an
-            edge and drops ``ramp_thickness * cos(theta)`` onto the floor; 0: the model's plane
-            through the foot line.
+        ramp_thickness: the true thickness of the ramp board in m, in place of the scene's
+            ``ramp.thickness`` (which the fitted model uses): > 0 makes the ramp a board (a box)
+            lying on the floor at its foot, its top face the sliding surface, so an object
+            leaves it over an edge and drops ``ramp_thickness * cos(theta)`` onto the floor;
+            0: the scene's own ramp.
     """
 
     cone: str = "pyramidal"
@@ -141,25 +143,36 @@ class WorldPhysics:
 
 def apply_world_physics(spec: mujoco.MjSpec, scene: Scene, world: WorldPhysics) -> None:
     """Change a scene's :func:`build_spec` in place to ``world``'s physics (see
-    :class:`WorldPhysics`): the friction cone, and a ramp board of ``world.ramp_thickness`` m,
-    whose bottom face is the model's ramp plane (so its foot edge rests on the floor), with the
-    objects on the ramp lifted onto its top face."""
+    :class:`WorldPhysics`): the friction cone, and a ramp board of ``world.ramp_thickness`` m in
+    place of the scene's (:func:`set_ramp_board`)."""
     if world.cone == "elliptic":
         spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    t = world.ramp_thickness
-    if t <= 0:
-        return
-    th = scene.ramp.angle
+    if world.ramp_thickness > 0:
+        set_ramp_board(spec, scene, world.ramp_thickness)
+
+
+def set_ramp_board(spec: mujoco.MjSpec, scene: Scene, thickness: float) -> None:
+    """Make the ramp of a scene's :func:`build_spec` (built with ``scene.ramp.thickness``) a
+    board (a box) ``thickness`` m thick whose bottom face is the ramp plane, so its foot edge
+    rests on the floor, with the objects on the ramp moved onto its top face; ``thickness`` 0
+    makes it the flush plane again."""
+    th, L, W = scene.ramp.angle, scene.ramp.length, scene.ramp.width
     tangent = np.array([math.cos(th), 0.0, -math.sin(th)])
     normal = np.array([math.sin(th), 0.0, math.cos(th)])
     ramp = spec.geom("ramp")
-    ramp.type = mujoco.mjtGeom.mjGEOM_BOX
-    ramp.size = [scene.ramp.length / 2, scene.ramp.width / 2, t / 2]
-    ramp.pos = list(-0.5 * scene.ramp.length * tangent + 0.5 * t * normal)
+    if thickness > 0:
+        ramp.type = mujoco.mjtGeom.mjGEOM_BOX
+        ramp.size = [L / 2, W / 2, thickness / 2]
+        ramp.pos = list(-0.5 * L * tangent + 0.5 * thickness * normal)
+    else:
+        ramp.type = mujoco.mjtGeom.mjGEOM_PLANE
+        ramp.size = [L / 2, W / 2, 0.05]
+        ramp.pos = list(-0.5 * L * tangent)
+    lift = thickness - scene.ramp.thickness
     for i in range(scene.n_objects):
         if scene.placement(i) == "ramp":
             body = spec.body(f"object{i + 1}")
-            body.pos = list(np.asarray(body.pos) + t * normal)
+            body.pos = list(np.asarray(body.pos) + lift * normal)
 
 
 def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None) -> mujoco.MjSpec:
@@ -222,6 +235,8 @@ def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None) -> m
     if scene.n_objects == 2:
         spec.add_pair(name="object1_object2", geomname1="object1", geomname2="object2", condim=1,
                       friction=[0.0, 0.0, 0.005, 0.0001, 0.0001])
+    if scene.ramp.thickness > 0:
+        set_ramp_board(spec, scene, scene.ramp.thickness)
     if world is not None:
         apply_world_physics(spec, scene, world)
     for effect in effects:

@@ -8,7 +8,9 @@ the video unless given) and optional start pixels of each object.
 
 World frame (SI units, metres): x is horizontal, positive in the direction object 1 moves
 down the ramp; z is up; the ramp's foot line is the y axis. The floor is z = 0 for x >= 0 and
-the ramp surface is z = -x tan(theta) for -L cos(theta) <= x <= 0. An object's ``start`` is
+the ramp surface is z = -x tan(theta) for -L cos(theta) <= x <= 0 (for a board of thickness
+t, ``ramp.thickness``, that plane is its bottom face and the objects slide on the plane t above
+it). An object's ``start`` is
 the distance along the surface from the foot line to the point under its centre (up the
 slope for an object on the ramp, along +x for one on the floor).
 
@@ -51,11 +53,17 @@ class _Strict(BaseModel):
 
 
 class Ramp(_Strict):
-    """The inclined plane: angle in degrees (0, 80), length along the surface in metres."""
+    """The inclined plane: angle in degrees (0, 80), length along the surface in metres, and
+    ``thickness`` in metres (0 to 0.1): 0 (the default) is a ramp surface that meets the floor
+    flush at the foot line; > 0 is a board of that thickness lying on the floor (the common
+    classroom setup), whose top face the objects slide on, so an object leaves it over an edge
+    and drops ``thickness * cos(angle)`` onto the floor. Measure it with a ruler: a 1-2 cm board
+    left out changes the velocity profile at the foot by several times the tracking noise."""
 
     angle_deg: float = Field(gt=0, lt=80)
     length: PositiveFloat = 1.0
     width: PositiveFloat = 0.3
+    thickness: float = Field(default=0.0, ge=0.0, le=0.1)
 
     @property
     def angle(self) -> float:
@@ -266,6 +274,11 @@ class Scene(_Strict):
                 a, b = sorted(shapes)
                 raise ValueError(f"MuJoCo-MJX cannot collide a {a} with a {b}; model both objects as boxes "
                                  f"(or both as cylinders) with the same sizes")
+        if self.ramp.thickness > 0:
+            for i, (obj, where) in enumerate(zip(self.objects, placed)):
+                if where == "ramp" and obj.shape == "cylinder":
+                    raise ValueError(f"objects[{i}] is a cylinder on a ramp board (ramp.thickness > 0), and MuJoCo-MJX "
+                                     "cannot collide a cylinder with a box; give ramp.thickness 0, or model it as a box")
         if len(self.objects) == 2 and placed == ["ramp", "ramp"]:
             a, b = self.objects
             if abs(a.start - b.start) < (a.length + b.length) / 2:

@@ -59,3 +59,37 @@ def test_calibration_round_trip_with_roll_and_direction():
     assert d[0, 0] < 0
     d = cal.world_to_pixel([[0.1, 0.15]]) - cal.world_to_pixel([[0.1, 0.05]])
     assert d[0, 1] < 0
+
+
+def test_a_ramp_board_stated_in_the_scene_is_the_board_the_renderer_draws():
+    """ramp.thickness: objects on the ramp start on the board's top face (lifted t along the
+    normal), the model's ramp is a box of that thickness, a rendered world board of the same
+    thickness gives the same motion exactly, and bad values or a cylinder on a board (MJX cannot
+    collide a cylinder with a box) are rejected naming the key."""
+    from galileo_jax import synth
+    from galileo_jax.model import WorldPhysics
+
+    d = base()
+    d["ramp"]["thickness"] = 0.015
+    board, flat = scene_from_dict(d), scene_from_dict(base())
+    th = board.ramp.angle
+    lift = object_start_pose(board, 0)[0] - object_start_pose(flat, 0)[0]
+    np.testing.assert_allclose(lift, [0.015 * math.sin(th), 0.0, 0.015 * math.cos(th)], atol=1e-12)
+    np.testing.assert_allclose(object_start_pose(board, 1)[0], object_start_pose(flat, 1)[0])  # on the floor
+    model, _ = build_model(board)
+    ramp = model.geom("ramp")
+    assert ramp.type[0] == 6 and ramp.size[2] == pytest.approx(0.0075)  # mjGEOM_BOX, half-thickness
+    phys = synth.resolve_params(flat, {"m1": 0.5, "k1": 0.2, "m2": 0.4, "k2": 0.25})
+    stated = synth.simulate_motion(board, phys, 240.0, 3, n_frames=300)
+    world = synth.simulate_motion(flat, phys, 240.0, 3, n_frames=300, world=WorldPhysics(ramp_thickness=0.015))
+    np.testing.assert_array_equal(stated.positions, world.positions)
+    assert np.max(np.abs(stated.positions - synth.simulate_motion(flat, phys, 240.0, 3, n_frames=300).positions)) > 0.01
+    for value, words in ((-0.01, "ramp.thickness"), (0.5, "ramp.thickness")):
+        d["ramp"]["thickness"] = value
+        with pytest.raises(SceneError, match=words):
+            scene_from_dict(d)
+    d["ramp"]["thickness"] = 0.01
+    d["objects"][0].update(shape="cylinder", size=[0.03, 0.06])
+    d["objects"][1].update(shape="cylinder", size=[0.03, 0.06])
+    with pytest.raises(SceneError, match="cylinder on a ramp board"):
+        scene_from_dict(d)

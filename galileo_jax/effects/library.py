@@ -252,6 +252,8 @@ def _rolling_applies(scene) -> str | None:
         return "no object declares a round cross-section (objects[i].rolling: {radius, inertia_ratio})"
     if scene.n_objects == 2:
         return "MuJoCo-MJX cannot collide a rolling cylinder with a box; use a one-object scene"
+    if scene.ramp.thickness > 0:
+        return "MuJoCo-MJX cannot collide a rolling cylinder with a ramp board (a box: ramp.thickness > 0)"
     return None
 
 
