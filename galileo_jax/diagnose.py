@@ -105,6 +105,9 @@ def summary_text(diag, videos: list[Path]) -> str:
                          f"RMSE {nr['rmse_before']:.4f} -> {nr['rmse_after']:.4f} m/s): the tests below are against it"
                          + (f"; refitted from it, better: {', '.join(nr['alternatives_improved'])}"
                             if nr.get("alternatives_improved") else ""))
+        if rnd.get("quiet"):
+            lines += ["    the residuals look like noise and no candidate's screen points at an effect: no refit", ""]
+            continue
         if rnd.get("adequate"):
             lines.append(f"    away from contact events the model fits to within "
                          f"{diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor (RMSE "
