@@ -245,11 +245,12 @@ class DiagnoseSettings:
             residuals look like noise, every candidate's score test has p > ``quiet_p`` and its
             coarse profile gains < ``quiet_gain`` nats (2 ~ half the 95% chi-square(1) point),
             and no candidate is structural, nothing points at an effect and no refit runs
-            (``quiet_p`` 0 turns this off). Measured on our own calibration renders' recorded
-            screens: it skips the refits of 2 of 55 videos (one without an effect, 1016 s of
-            refits; one with a restitution diagnose missed anyway) and of none where the hidden
-            effect was named; on foreign renders (a hand over the object, 2.2x the floor,
-            residuals like noise) it saves 20-25 minutes of refits per video.
+            (``quiet_p`` 0 turns this off). Measured on the recorded screens of our own 55
+            calibration renders: it would skip none (the one video not adequate with residuals
+            like noise, a hidden initial push, had a screen p of 0.04 and a profile gain of 29
+            nats, and was named); on foreign renders with a hand over the object (2.2x the
+            floor, residuals like noise, every screen p >= 0.16) it saves 20-25 minutes of
+            refits per video.
     """
 
     candidates: tuple[str, ...] | None = None
