@@ -26,7 +26,8 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    sensitivity after projecting out the current parameters) and a coarse profile over the
    parameter's range with the same first-order re-adjustment (:func:`screen_candidates`):
    one batched set of rollouts. It orders the refits and is reported; it decides nothing,
-   except (4b) when nothing points at an effect: residuals that look like noise, every score
+   except (4b) when nothing points at an effect: a model within ``quiet_max_ratio`` (2.5) of
+   the floor whose residuals look like noise, every score
    test at p > ``quiet_p`` and every profile gain < ``quiet_gain`` nats (:func:`quiet`) end
    the diagnosis with "no missing effect" and no refit.
 5. **Refit** the ``refits`` best-scoring candidates (by default all of them) and every
@@ -241,8 +242,11 @@ class DiagnoseSettings:
             ``ramp_friction`` is reported with the angle error that would mimic it
             (:func:`equivalent_angle_error`) and, within this tolerance, as possibly that
             calibration error rather than the surface.
-        quiet_p, quiet_gain: step 4b of the module docstring: when the current model's
-            residuals look like noise, every candidate's score test has p > ``quiet_p`` and its
+        quiet_p, quiet_gain, quiet_max_ratio: step 4b of the module docstring: when the
+            current model fits within ``quiet_max_ratio`` of the noise floor (RMSE over all
+            samples; a larger misfit is refitted whatever the screen says: a hidden drag at
+            3.8x the floor showed in no screen), its residuals look like noise, every
+            candidate's score test has p > ``quiet_p`` and its
             coarse profile gains < ``quiet_gain`` nats (2 ~ half the 95% chi-square(1) point),
             and no candidate is structural, nothing points at an effect and no refit runs
             (``quiet_p`` 0 turns this off). Measured on the recorded screens of our own 55
@@ -284,6 +288,7 @@ class DiagnoseSettings:
     base_retry: bool = True
     quiet_p: float = 0.05
     quiet_gain: float = 2.0
+    quiet_max_ratio: float = 2.5
 
 
 @dataclass
@@ -598,12 +603,15 @@ def _adequate_round(rnd_info: dict, current: ModelFit, observations, masks, floo
     return {**rnd_info, "adequate": True, "calm_rmse": rmse_calm, "calm_fraction": fraction}
 
 
-def quiet(current: ModelFit, screen: list[dict], candidates, settings: DiagnoseSettings) -> bool:
+def quiet(current: ModelFit, screen: list[dict], candidates, settings: DiagnoseSettings, floor: float) -> bool:
     """Step 4b of the module docstring: True when nothing points at an effect, so no refit
-    runs: the residuals of ``current`` look like noise, every ``screen`` row has p >
-    ``settings.quiet_p`` and a grid gain < ``settings.quiet_gain`` nats, and no candidate is
-    structural (the screen cannot rank those). ``quiet_p`` 0 turns it off."""
+    runs: ``current`` fits within ``settings.quiet_max_ratio`` x ``floor`` (m/s) and its
+    residuals look like noise, every ``screen`` row has p > ``settings.quiet_p`` and a grid
+    gain < ``settings.quiet_gain`` nats, and no candidate is structural (the screen cannot rank
+    those). ``quiet_p`` 0 turns it off."""
     if settings.quiet_p <= 0 or not screen or any(e.structural for e in candidates):
+        return False
+    if not current.rmse <= settings.quiet_max_ratio * floor:
         return False
     return (bool(current.criticism.get("looks_like_noise", False))
             and all(r["p_value"] > settings.quiet_p and r["grid_gain"] < settings.quiet_gain for r in screen))
@@ -1199,7 +1207,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         order = list(dict.fromkeys(row["effect"] for row in screen))
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
-        if quiet(current, screen, candidates, settings):  # step 4b: nothing points at an effect
+        if quiet(current, screen, candidates, settings, floor):  # step 4b: nothing points at an effect
             rnd_info["quiet"] = True
             rounds.append(rnd_info)
             break

@@ -550,10 +550,10 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
 
 
 def test_no_refit_when_nothing_points_at_an_effect():
-    """quiet (step 4b): residuals that look like noise, every screen p above quiet_p and every
-    profile gain below quiet_gain -> no refit and "no missing effect" saying why; one screen row
-    that points at an effect (p or gain), structured residuals, a structural candidate or
-    quiet_p 0 -> refits run."""
+    """quiet (step 4b): residuals that look like noise within quiet_max_ratio of the floor,
+    every screen p above quiet_p and every profile gain below quiet_gain -> no refit and "no
+    missing effect" saying why; one screen row that points at an effect (p or gain), structured
+    residuals, a larger misfit, a structural candidate or quiet_p 0 -> refits run."""
     from types import SimpleNamespace
 
     from galileo_jax.diagnosis import DiagnoseSettings, _decision, quiet
@@ -563,14 +563,15 @@ def test_no_refit_when_nothing_points_at_an_effect():
     screen = [{"effect": "linear_drag", "p_value": 0.43, "grid_gain": -107.5},
               {"effect": "quadratic_drag", "p_value": 0.27, "grid_gain": -14.6}]
     plain = [SimpleNamespace(structural=False)]
-    assert quiet(noisy, screen, plain, settings)
+    assert quiet(noisy, screen, plain, settings, 0.0037)
     d = _decision([noisy], [{"refits": [], "quiet": True, "screen": screen}], [], 0, 0.0037, 0.008, 1.3)
     assert d["missing_effects"] == [] and not d["unexplained_misfit"]
     assert d["message"].startswith("No missing effect: the residuals look like noise (2.2x the noise floor")
     assert "smallest p = 0.27, largest profile gain -14.6 nats" in d["message"]
-    assert not quiet(noisy, screen + [{"effect": "initial_push", "p_value": 0.18, "grid_gain": 29.2}], plain, settings)
-    assert not quiet(noisy, screen + [{"effect": "restitution", "p_value": 0.01, "grid_gain": -3.0}], plain, settings)
+    assert not quiet(noisy, screen + [{"effect": "initial_push", "p_value": 0.18, "grid_gain": 29.2}], plain, settings, 0.0037)
+    assert not quiet(noisy, screen + [{"effect": "restitution", "p_value": 0.01, "grid_gain": -3.0}], plain, settings, 0.0037)
     structured = SimpleNamespace(name="base", rmse=0.0082, criticism={"looks_like_noise": False})
-    assert not quiet(structured, screen, plain, settings)
-    assert not quiet(noisy, screen, plain + [SimpleNamespace(structural=True)], settings)
-    assert not quiet(noisy, screen, plain, dataclasses.replace(settings, quiet_p=0.0))
+    assert not quiet(structured, screen, plain, settings, 0.0037)
+    assert not quiet(noisy, screen, plain + [SimpleNamespace(structural=True)], settings, 0.0037)
+    assert not quiet(noisy, screen, plain, dataclasses.replace(settings, quiet_p=0.0), 0.0037)
+    assert not quiet(noisy, screen, plain, settings, 0.0080 / 3.8)  # a hidden drag at 3.8x the floor
