@@ -225,8 +225,13 @@ _ENGINES_SIZE = 16
 
 
 def scene_key(scene: Scene) -> str:
-    """What of a scene changes the simulation (everything but its name, camera and video block)."""
-    return scene.model_dump_json(exclude={"name", "camera", "video"})
+    """What of a scene changes the simulation (everything but its name, camera and video block).
+    A flush ramp (``ramp.thickness`` 0) leaves the thickness out, so the key of every scene
+    written before that key existed (and the shipped CNNs' scene hashes) is unchanged."""
+    exclude: dict = {"name": True, "camera": True, "video": True}
+    if scene.ramp.thickness == 0:
+        exclude["ramp"] = {"thickness"}
+    return scene.model_dump_json(exclude=exclude)
 
 
 def _blocks(seconds: float, fps: float) -> float:
