@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from galileo_jax.scene import Scene, SceneObject
+from galileo_jax.scene import MAX_RAMP_THICKNESS, Scene, SceneObject
 
 #: Nominal mass (kg) given to free masses when the model is built; the simulator rescales.
 NOMINAL_MASS = 0.5
@@ -132,13 +132,8 @@ class WorldPhysics:
     def __post_init__(self):
         if self.cone not in ("pyramidal", "elliptic"):
             raise ValueError(f"cone {self.cone!r}: give pyramidal or elliptic")
-        if not (math.isfinite(self.ramp_thickness) and 0.0 <= self.ramp_thickness <= 0.1):
-            raise ValueError(f"ramp thickness {self.ramp_thickness} m: give 0 to 0.1 m")
-
-    @property
-    def is_model(self) -> bool:
-        """True when this is the model's own physics."""
-        return self == WorldPhysics()
+        if not (math.isfinite(self.ramp_thickness) and 0.0 <= self.ramp_thickness <= MAX_RAMP_THICKNESS):
+            raise ValueError(f"ramp thickness {self.ramp_thickness} m: give 0 to {MAX_RAMP_THICKNESS:g} m")
 
 
 def apply_world_physics(spec: mujoco.MjSpec, scene: Scene, world: WorldPhysics) -> None:
@@ -153,21 +148,15 @@ def apply_world_physics(spec: mujoco.MjSpec, scene: Scene, world: WorldPhysics) 
 
 def set_ramp_board(spec: mujoco.MjSpec, scene: Scene, thickness: float) -> None:
     """Make the ramp of a scene's :func:`build_spec` (built with ``scene.ramp.thickness``) a
-    board (a box) ``thickness`` m thick whose bottom face is the ramp plane, so its foot edge
-    rests on the floor, with the objects on the ramp moved onto its top face; ``thickness`` 0
-    makes it the flush plane again."""
+    board (a box) ``thickness`` (> 0) m thick whose bottom face is the ramp plane, so its foot
+    edge rests on the floor, with the objects on the ramp moved onto its top face."""
     th, L, W = scene.ramp.angle, scene.ramp.length, scene.ramp.width
     tangent = np.array([math.cos(th), 0.0, -math.sin(th)])
     normal = np.array([math.sin(th), 0.0, math.cos(th)])
     ramp = spec.geom("ramp")
-    if thickness > 0:
-        ramp.type = mujoco.mjtGeom.mjGEOM_BOX
-        ramp.size = [L / 2, W / 2, thickness / 2]
-        ramp.pos = list(-0.5 * L * tangent + 0.5 * thickness * normal)
-    else:
-        ramp.type = mujoco.mjtGeom.mjGEOM_PLANE
-        ramp.size = [L / 2, W / 2, 0.05]
-        ramp.pos = list(-0.5 * L * tangent)
+    ramp.type = mujoco.mjtGeom.mjGEOM_BOX
+    ramp.size = [L / 2, W / 2, thickness / 2]
+    ramp.pos = list(-0.5 * L * tangent + 0.5 * thickness * normal)
     lift = thickness - scene.ramp.thickness
     for i in range(scene.n_objects):
         if scene.placement(i) == "ramp":

@@ -46,6 +46,8 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 #: Object-object collisions MJX 3.17 does not implement (measured, issue 2).
 UNSUPPORTED_PAIRS = (frozenset({"cylinder", "box"}), frozenset({"cylinder", "sphere"}))
 Pixel = tuple[float, float]
+#: Thickest ramp board a scene (or a rendered world) may have, in m.
+MAX_RAMP_THICKNESS = 0.1
 
 
 class _Strict(BaseModel):
@@ -63,7 +65,7 @@ class Ramp(_Strict):
     angle_deg: float = Field(gt=0, lt=80)
     length: PositiveFloat = 1.0
     width: PositiveFloat = 0.3
-    thickness: float = Field(default=0.0, ge=0.0, le=0.1)
+    thickness: float = Field(default=0.0, ge=0.0, le=MAX_RAMP_THICKNESS)
 
     @property
     def angle(self) -> float:

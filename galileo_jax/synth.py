@@ -94,6 +94,7 @@ The shipped example was made with::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -848,7 +849,7 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
         "camera": {"projection": view.projection, "distance_m": view.distance if view.perspective else None,
                    "fovy_deg": view.fovy if view.perspective else None, "direction": view.direction},
         "blur": blur, "shutter": shutter, "backdrop": backdrop,
-        "world": {"cone": (world or WorldPhysics()).cone, "ramp_thickness": (world or WorldPhysics()).ramp_thickness},
+        "world": dataclasses.asdict(world or WorldPhysics()),
         "pixels_front": _pixels(view, motion.qpos, motion.qpos_adr, render.front_offsets(scene, view)),
     })
     if blur >= 2:
