@@ -48,7 +48,7 @@ class GradConfig(_Strict):
 
     starts: int = Field(4, ge=1, le=256)
     screen: int = Field(256, ge=1, le=4096)
-    max_steps: int = Field(40, ge=1)
+    max_steps: int = Field(100, ge=1)
     jacobian: Literal["fd", "ad"] = "fd"
 
 
