@@ -266,8 +266,8 @@ class DiagnoseSettings:
     refits: int = 6
     alpha: float = 0.05
     min_rmse_drop: float = 0.10
-    adequate_ratio: float = 1.3
-    adequate_ratio_all: float = 1.6
+    adequate_ratio: float = criticism.ADEQUATE_RATIO
+    adequate_ratio_all: float = criticism.ADEQUATE_RATIO_ALL
     max_effects: int = 1
     likelihood: str = DEFAULT_KIND
     sd_model: float = DEFAULT_SD_MODEL
@@ -571,18 +571,14 @@ def event_sds(base: ModelFit, observations) -> list[np.ndarray]:
 
 
 #: Velocity jump (m/s) that marks a contact event for the adequacy check (step 3 of the module
-#: docstring). Lower than the test likelihood's EVENT_JUMP: a gentle second collision (a 0.09 m/s
-#: jump, rendered video without a hidden effect) that MJX resolves one frame off the renderer
-#: leaves a residual as large as the jump itself (0.11 m/s measured).
-GATE_JUMP = 0.05
+#: docstring; :data:`galileo_jax.criticism.GATE_JUMP`, shared with every fit's adequacy verdict).
+GATE_JUMP = criticism.GATE_JUMP
 
 
 def calm_masks(base: ModelFit, observations) -> list[np.ndarray]:
-    """Per video the (2n, N-1) bool mask of fitted samples away from contact events (a velocity
-    jump of at least :data:`GATE_JUMP` in ``base``'s simulated or the observed profile, and one
-    sample on either side; :func:`galileo_jax.likelihood.event_sd`)."""
-    return [(event_sd(v.simulated, o.profile, o.velocity_sd, jump=GATE_JUMP) == 0) & np.asarray(o.mask, bool)[None]
-            for v, o in zip(base.videos, observations)]
+    """Per video the (2n, N-1) bool mask of fitted samples away from contact events
+    (:func:`galileo_jax.criticism.calm_mask` of ``base``'s simulated profile)."""
+    return [criticism.calm_mask(o, v.simulated) for v, o in zip(base.videos, observations)]
 
 
 def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:

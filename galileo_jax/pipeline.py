@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax import criticism
 from galileo_jax.calibration import calibration
 from galileo_jax.config import FitConfig
 from galileo_jax.errors import GalileoError
@@ -47,6 +48,8 @@ class FitReport:
         prediction: rest positions and "will it slide?" beyond the video.
         outputs: paths written.
         timings: seconds per stage.
+        adequacy: the fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy`): do the
+            residuals look like noise, and if not, where the model fails.
     """
 
     video: Path
@@ -61,6 +64,7 @@ class FitReport:
     prediction: dict
     outputs: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    adequacy: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -361,10 +365,11 @@ def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: st
         band = np.quantile(profiles, [0.05, 0.95], axis=0)
     rmse = _rmse(obs, simulated)
     prediction = _prediction(problem, scene, obs, theta_best, draws, cfg.prediction.tail)
+    adequacy = criticism.adequacy(obs, simulated, simulated_poses(problem, theta_best), cfg.likelihood.sd_model)
     timings["simulate_and_predict_s"] = time.perf_counter() - t
 
     report = FitReport(tracked.video, scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
-                       timings=timings)
+                       timings=timings, adequacy=adequacy)
     t = time.perf_counter()
     _write_outputs(report, problem, theta_best, tracked.clip, out, cfg, seed, overlay, progress)
     timings["write_s"] = time.perf_counter() - t
@@ -473,6 +478,7 @@ def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: P
         "identifiability": identifiability_statement(report.scene),
         "diagnostics": report.diagnostics,
         "rmse_per_trace_m_per_s": report.rmse,
+        "adequacy": report.adequacy,
         "prediction": report.prediction,
         "observation": {
             "fps": obs.fps, "n_frames": int(len(obs.frame_times)), "release_time_s": obs.release_time,

@@ -93,6 +93,11 @@ def test_seed_method_on_the_example(tmp_path):
     truth = json.loads(EXAMPLE.with_suffix(".truth.json").read_text())
     assert abs(result["parameters"]["k1"]["estimate"] - truth["k1"]) < 0.02
     assert result["diagnostics"]["engine"] in ("mjx", "mujoco")
+    # every report carries a fit-adequacy verdict, in result.json and in the printed summary
+    adequacy = result["adequacy"]
+    assert isinstance(adequacy["adequate"], bool) and adequacy["noise_floor_m_per_s"] > 0
+    assert adequacy["rmse_over_floor"] == pytest.approx(adequacy["rmse_m_per_s"] / adequacy["noise_floor_m_per_s"])
+    assert f"fit adequacy: {adequacy['verdict']}" in proc.stdout
 
 
 def test_bad_config_file(tmp_path):

@@ -72,6 +72,20 @@ def _footer_lines(outputs: dict, elapsed: float | None) -> list[str]:
     return lines
 
 
+def _adequacy_lines(adequacy: dict, video, scene) -> list[str]:
+    """The fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy`) and, where the residuals
+    are structured, where to look next."""
+    if not adequacy:
+        return []
+    lines = [f"  fit adequacy: {adequacy['verdict']}"]
+    if not adequacy["adequate"] and not adequacy["looks_like_noise"]:
+        scale = (" a calibration error (a scale measured by hand is rarely better than a few percent: state "
+                 "camera.scale_tolerance, e.g. 0.03, to fit it) or" if scene.camera.scale_tolerance is None else "")
+        lines.append("  The model misses something here (the estimates and intervals above assume it does not):"
+                     f"{scale} a physical effect; python -m galileo_jax.diagnose {video} looks for both.")
+    return lines
+
+
 def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
     """Multi-line summary: estimates with 90% intervals, diagnostics, fit quality, prediction."""
     obs = fit.observation
@@ -84,6 +98,7 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
     lines += ["", "  " + identifiability_statement(fit.scene), ""]
     lines.append("  fit quality (RMSE of observed - simulated velocity, m/s; noise = tracking noise SD):")
     lines += _rmse_lines(fit.rmse)
+    lines += _adequacy_lines(fit.adequacy, fit.video, fit.scene)
     lines += _diagnostic_lines(fit.diagnostics) + [""]
     pred = fit.prediction
     lines.append(f"  prediction ({pred['simulated_seconds_after_release']:.1f} s after release):")
