@@ -104,7 +104,7 @@ from typing import Any
 import numpy as np
 from scipy import linalg, special
 
-from galileo_jax.likelihood import event_jumps, event_sd
+from galileo_jax.likelihood import DEFAULT_SD_MODEL, event_jumps, event_sd
 from galileo_jax.observation import Observation
 from galileo_jax.report.figures import trace_names
 
@@ -118,8 +118,8 @@ TESTS = ("runs", "lag1", "cusum", "chi2")
 TEST_LABELS = {"runs": "runs test", "lag1": "lag-1 autocorrelation", "cusum": "CUSUM", "chi2": "chi-square"}
 #: Default speed (m/s) below which a simulated object counts as at rest.
 REST_SPEED = 0.02
-#: Default model-error floor in m/s (same as :data:`galileo_jax.likelihood.DEFAULT_SD_MODEL`).
-SD_MODEL = 0.05
+#: Default model-error floor in m/s (:data:`galileo_jax.likelihood.DEFAULT_SD_MODEL`).
+SD_MODEL = DEFAULT_SD_MODEL
 #: Smallest phase (masked samples) that gets its own table row.
 MIN_SAMPLES = 3
 #: Displacement (m) below which the verdict describes a velocity offset instead of a distance.

@@ -94,6 +94,13 @@ def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
     return params, summary_dict["diagnostics"]
 
 
+def draw_subset(draws: np.ndarray, n: int, key) -> np.ndarray:
+    """``min(n, S)`` of the (S, d) posterior ``draws``, chosen without replacement from ``key``
+    (the user's seed): the draws a fit simulates for its predictive band and predictions."""
+    pick = jax.random.choice(key, len(draws), (min(int(n), len(draws)),), replace=False)
+    return np.asarray(draws)[np.asarray(pick)]
+
+
 def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool, init: str = "prior",
                         cnn_model=None):
     """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None).
@@ -146,8 +153,8 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
                          jump=cfg.mh.jump, **mh_start_from_cnn(start, cfg.mh.chains), progress=progress)
         params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
         flat = res.theta.reshape(-1, res.theta.shape[-1])
-        idx = np.random.default_rng(0).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
-        return params, {**diag, **cnn_diag}, np.asarray(res.best_theta), flat[idx]
+        return (params, {**diag, **cnn_diag}, np.asarray(res.best_theta),
+                draw_subset(flat, cfg.prediction.draws, jax.random.fold_in(key, 11)))
     if method == "seed":
         from galileo_jax.inference.seed_mh import run_seed_mh
 
@@ -583,8 +590,7 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
         res = run_mh(joint, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
                      jump=cfg.mh.jump, progress=progress)
         flat = res.theta.reshape(-1, res.theta.shape[-1])
-        idx = np.random.default_rng(seed).choice(len(flat), size=min(cfg.prediction.draws, len(flat)), replace=False)
-        theta_best, draws = np.asarray(res.best_theta), flat[idx]
+        theta_best, draws = np.asarray(res.best_theta), draw_subset(flat, cfg.prediction.draws, k_draw)
     summ = summary.summarize_coordinates(res, method)
     summ["diagnostics"]["engine"] = joint.simulator_engine
     timings["inference_s"] = time.perf_counter() - t

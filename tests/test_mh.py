@@ -229,3 +229,20 @@ def test_mh_interval_covers_truth_on_simulated_video():
     assert p["phi"]["interval90"][0] < 1 / 3 < p["phi"]["interval90"][1]
     assert abs(p["k1"]["median"] - 0.2) < 0.01 and abs(p["phi"]["median"] - 1 / 3) < 0.1
     assert np.isfinite(summ["diagnostics"]["max_rhat"])
+
+
+def test_predictive_draws_follow_the_users_seed():
+    """pipeline.draw_subset: the posterior draws a fit simulates for its band come from the
+    user's seed (the key), without replacement; the same key gives the same subset."""
+    import jax
+    import numpy as np
+
+    from galileo_jax.pipeline import draw_subset
+
+    draws = np.arange(200.0).reshape(100, 2)
+    a = draw_subset(draws, 32, jax.random.key(0))
+    b = draw_subset(draws, 32, jax.random.key(1))
+    assert a.shape == (32, 2) and len(np.unique(a[:, 0])) == 32
+    assert np.array_equal(a, draw_subset(draws, 32, jax.random.key(0)))
+    assert not np.array_equal(np.sort(a[:, 0]), np.sort(b[:, 0]))
+    assert draw_subset(draws[:5], 32, jax.random.key(0)).shape == (5, 2)
