@@ -532,6 +532,7 @@ class JointFitReport:
         video_loglik: per video the log-likelihood at the estimate (nats).
         outputs: paths written.
         timings: seconds per stage.
+        adequacy: per video the fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy`).
     """
 
     videos: list[Path]
@@ -547,6 +548,7 @@ class JointFitReport:
     video_loglik: list[float]
     outputs: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    adequacy: list[dict] = field(default_factory=list)
 
 
 def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: str, out: Path,
@@ -599,9 +601,13 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     bands = [np.quantile(np.asarray(s), [0.05, 0.95], axis=0) for s in joint.simulate(draws)]
     rmse = [_rmse(o, s) for o, s in zip(observations, simulated)]
     video_ll = [float(x) for x in joint.video_log_likelihoods(theta_best)]
+    adequacy = [criticism.adequacy(o, s, simulated_poses(p, np.asarray(joint.theta_for(j, theta_best))),
+                                   cfg.likelihood.sd_model)
+                for j, (o, s, p) in enumerate(zip(observations, simulated, joint.problems))]
     timings["simulate_s"] = time.perf_counter() - t
     report = JointFitReport([v for v, _ in inputs], [s for _, s in inputs], method, observations, joint.space.per_video,
-                            summ["parameters"], summ["diagnostics"], simulated, bands, rmse, video_ll, timings=timings)
+                            summ["parameters"], summ["diagnostics"], simulated, bands, rmse, video_ll, timings=timings,
+                            adequacy=adequacy)
     out.mkdir(parents=True, exist_ok=True)
     for j, (obs, video) in enumerate(zip(observations, report.videos)):
         times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
@@ -614,6 +620,7 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
         "method": method, "shared": [n for n in joint.names if "@" not in n], "per_video": list(report.per_video),
         "parameters": report.parameters, "identifiability": identifiability_statement(report.scenes[0]),
         "diagnostics": report.diagnostics, "rmse_per_video_m_per_s": rmse, "loglik_per_video": video_ll,
+        "adequacy_per_video": adequacy,
         "observations": [{"fps": o.fps, "n_frames": int(len(o.frame_times)), "release_time_s": o.release_time,
                           "velocity_sd_m_per_s": o.velocity_sd, "fit_samples": int(np.sum(o.mask)),
                           "tracking": None if o.tracking is None else o.tracking.summary()} for o in observations],

@@ -54,6 +54,8 @@ def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str
     for j, (r, ll) in enumerate(zip(fit.rmse, fit.video_loglik)):
         lines.append(f"    video {j + 1}: RMSE {r['all']['rmse']:.3f}, log L {ll:.1f}")
         lines += _rmse_lines(r, "      ")
+        if j < len(fit.adequacy):
+            lines += ["    " + x for x in _adequacy_lines(fit.adequacy[j], fit.videos[j], fit.scenes[j])]
     lines += _diagnostic_lines(fit.diagnostics) + [""]
     return "\n".join(lines + _footer_lines(fit.outputs, elapsed))
 
