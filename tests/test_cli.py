@@ -219,3 +219,16 @@ def test_cnn_bad_input(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("stepz: 3\n")
     assert_one_line_error(run_cli("galileo_jax.train", "--config", str(bad)), "stepz", "unknown key")
+
+
+def test_every_command_line_is_installed_as_a_command():
+    """pyproject's console scripts: fit, synth, diagnose, train and sweep, each pointing at a
+    main() that exists."""
+    import importlib
+    import tomllib
+
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert {"galileo-fit", "galileo-synth", "galileo-diagnose", "galileo-train", "galileo-sweep"} <= set(scripts)
+    for target in scripts.values():
+        module, func = target.split(":")
+        assert callable(getattr(importlib.import_module(module), func)), target
