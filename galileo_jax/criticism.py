@@ -105,8 +105,7 @@ import numpy as np
 from scipy import linalg, special
 
 from galileo_jax.likelihood import DEFAULT_SD_MODEL, event_jumps, event_sd
-from galileo_jax.observation import Observation
-from galileo_jax.report.figures import trace_names
+from galileo_jax.observation import Observation, trace_names
 
 #: Motion phases in display (roughly chronological) order.
 PHASES = ("before_release", "ramp", "floor", "collision", "rest")
@@ -486,7 +485,7 @@ class ResidualRow:
     """Residual summary and structure tests of one trace in one phase (or "all").
 
     Attributes:
-        trace: trace name, e.g. "object 2 x" (:func:`galileo_jax.report.figures.trace_names`).
+        trace: trace name, e.g. "object 2 x" (:func:`galileo_jax.observation.trace_names`).
         object: object number, 1-based.
         axis: "x" (horizontal, positive downhill) or "y" (vertical, up).
         phase: one of :data:`PHASES` or :data:`ALL`.

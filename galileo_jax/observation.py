@@ -107,3 +107,8 @@ def profile_from_positions(positions: np.ndarray, frame_times: np.ndarray) -> np
     """(N, n, 2) positions in m and (N,) times in s -> (2n, N-1) velocity profile in m/s."""
     v = np.diff(positions, axis=0) / np.diff(frame_times)[:, None, None]
     return v.reshape(v.shape[0], -1).T
+
+
+def trace_names(n_objects: int) -> list[str]:
+    """Names of a velocity profile's rows: "object 1 x", "object 1 y", ... (y is vertical, up)."""
+    return [f"object {i + 1} {axis}" for i in range(n_objects) for axis in ("x", "y")]

@@ -12,6 +12,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -22,11 +23,34 @@ from galileo_jax.calibration import calibration
 from galileo_jax.config import FitConfig
 from galileo_jax.errors import GalileoError
 from galileo_jax.inference.problem import Problem
-from galileo_jax.observation import Observation
+from galileo_jax.observation import Observation, trace_names
 from galileo_jax.predict import RestPrediction, predict_rest, slides
-from galileo_jax.report.figures import profile_figure, trace_names, tracking_figure
-from galileo_jax.report.results import package_versions, write_json
+from galileo_jax.report.figures import profile_figure, tracking_figure
+from galileo_jax.report.results import package_versions, write_json, write_netcdf
 from galileo_jax.scene import Scene
+
+
+#: Draws of a Gaussian approximation (grad) written to ``posterior.nc``.
+APPROXIMATION_DRAWS = 1000
+
+
+class Posterior(NamedTuple):
+    """A fit's posterior as draws, for ``posterior.nc``
+    (:func:`galileo_jax.inference.summary.inference_data`).
+
+    Attributes:
+        draws: {name: (chains, draws) array} of the reported quantities
+            (:func:`galileo_jax.inference.summary.posterior_draws`).
+        sample_stats: {name: (chains, draws) array} (mh: ``lp``, ``log_likelihood_total``, nats)
+            or None.
+        kind: what the draws are: "mcmc" (mh's chains), "gauss_newton" (grad: the normal
+            approximation at the Levenberg-Marquardt optimum, one chain) or "cnn" (the network's
+            Gaussian, one chain).
+    """
+
+    draws: dict
+    sample_stats: dict | None
+    kind: str
 
 
 @dataclass
@@ -50,6 +74,7 @@ class FitReport:
         timings: seconds per stage.
         adequacy: the fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy`): do the
             residuals look like noise, and if not, where the model fails.
+        posterior: the posterior as draws (:class:`Posterior`; None for the seed's sampler).
     """
 
     video: Path
@@ -65,6 +90,7 @@ class FitReport:
     outputs: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     adequacy: dict = field(default_factory=dict)
+    posterior: Posterior | None = None
 
 
 @dataclass
@@ -103,7 +129,8 @@ def draw_subset(draws: np.ndarray, n: int, key) -> np.ndarray:
 
 def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool, init: str = "prior",
                         cnn_model=None):
-    """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None).
+    """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None,
+    :class:`Posterior` or None).
 
     ``init="cnn"``: grad and mh start from the trained CNN's estimate (:func:`cnn_estimate`):
     grad runs one Levenberg-Marquardt start from it plus the best of a screen around it, as
@@ -129,7 +156,8 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             loglik = float(problem.log_likelihood(problem.space.to_unconstrained(jnp.asarray(start.theta))[None])[0])
             result = summary.summarize_cnn(start, problem.space, loglik)
             params, diag = _with_estimate(result, "median")
-            return params, diag, start.theta, start.draws[:cfg.prediction.draws]
+            post = Posterior(summary.posterior_draws(np.asarray(start.draws)[None], problem.space, k_sum), None, "cnn")
+            return params, diag, start.theta, start.draws[:cfg.prediction.draws], post
     cnn_diag = {} if start is None else {"init": "cnn", "cnn_theta": dict(zip(start.names, map(float, start.theta))),
                                          "cnn_time_s": float(start.time_s), "cnn_model": str(start.model.path)}
     if method == "grad":
@@ -141,7 +169,7 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             res = fit_grad(problem, k_run, **grad_start_from_cnn(start, problem.space, cfg),
                            jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
         params, diag, theta, draws = grad_estimate(res, problem.space, k_sum, cfg)
-        return params, {**diag, **cnn_diag}, theta, draws
+        return params, {**diag, **cnn_diag}, theta, draws, gauss_newton_posterior(res, problem.space, k_sum)
     if method == "mh":
         from galileo_jax.inference.mh import run_mh
 
@@ -153,8 +181,10 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
                          jump=cfg.mh.jump, **mh_start_from_cnn(start, cfg.mh.chains), progress=progress)
         params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
         flat = res.theta.reshape(-1, res.theta.shape[-1])
+        post = Posterior(summary.posterior_draws(res.theta, problem.space, k_sum),
+                         {"lp": res.logdensity, "log_likelihood_total": res.loglik}, "mcmc")
         return (params, {**diag, **cnn_diag}, np.asarray(res.best_theta),
-                draw_subset(flat, cfg.prediction.draws, jax.random.fold_in(key, 11)))
+                draw_subset(flat, cfg.prediction.draws, jax.random.fold_in(key, 11)), post)
     if method == "seed":
         from galileo_jax.inference.seed_mh import run_seed_mh
 
@@ -167,8 +197,18 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
         # at 0, the effects at their neutral values (what its rollouts simulated).
         neutral = {p.name: p.neutral for e in problem.space.effects for p in e.params}
         theta = np.array([params[n]["estimate"] if n in params else neutral.get(n, 0.0) for n in problem.space.names])
-        return params, diag, theta, None
+        return params, diag, theta, None, None
     raise GalileoError(f"unknown method {method!r}; choose grad, mh, cnn or seed")
+
+
+def gauss_newton_posterior(res, space, key) -> Posterior:
+    """:data:`APPROXIMATION_DRAWS` draws of grad's Gauss-Newton normal approximation (one chain)."""
+    from galileo_jax.inference import summary
+    from galileo_jax.inference.grad import gauss_newton_draws
+
+    k_draw, k_mass = jax.random.split(jax.random.fold_in(key, 13))
+    theta = gauss_newton_draws(res, space, k_draw, APPROXIMATION_DRAWS)[None]
+    return Posterior(summary.posterior_draws(theta, space, k_mass), None, "gauss_newton")
 
 
 def grad_options(cfg: FitConfig) -> dict:
@@ -344,21 +384,23 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
-    parameters, diagnostics, theta_best, draws = _estimate_and_draws(problem, method, cfg, key, progress, init,
+    parameters, diagnostics, theta_best, draws, posterior = _estimate_and_draws(problem, method, cfg, key, progress, init,
                                                                        tracked.cnn_model)
     diagnostics["engine"] = problem.simulator_engine
     timings = {"observe_s": tracked.seconds, "inference_s": time.perf_counter() - t}
     return finish_fit(tracked, problem, cfg, method=method, parameters=parameters, diagnostics=diagnostics,
                       theta_best=theta_best, draws=draws, timings=timings, out=out, seed=seed, overlay=overlay,
-                      progress=progress)
+                      progress=progress, posterior=posterior)
 
 
 def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: str, parameters: dict,
                diagnostics: dict, theta_best: np.ndarray, draws: np.ndarray | None, timings: dict, out: Path,
-               seed: int = 0, overlay: bool = True, progress: bool = True) -> FitReport:
+               seed: int = 0, overlay: bool = True, progress: bool = True,
+               posterior: Posterior | None = None) -> FitReport:
     """The last stages of :func:`run_fit`: simulate the estimate (d,) and the draws (S, d) over
-    the whole video, predict beyond it, and write ``result.json``, ``profiles.png`` (and
-    ``overlay.mp4`` if ``overlay``) into ``out``; ``timings`` (seconds per stage) is completed.
+    the whole video, predict beyond it, and write ``result.json``, ``profiles.png``,
+    ``tracking.png``, ``posterior.nc`` (with a ``posterior``) and ``overlay.mp4`` (if
+    ``overlay``) into ``out``; ``timings`` (seconds per stage) is completed.
 
     Raises:
         OSError: ``out`` cannot be written.
@@ -376,7 +418,7 @@ def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: st
     timings["simulate_and_predict_s"] = time.perf_counter() - t
 
     report = FitReport(tracked.video, scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
-                       timings=timings, adequacy=adequacy)
+                       timings=timings, adequacy=adequacy, posterior=posterior)
     t = time.perf_counter()
     _write_outputs(report, problem, theta_best, tracked.clip, out, cfg, seed, overlay, progress)
     timings["write_s"] = time.perf_counter() - t
@@ -443,7 +485,8 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
                 timings = {"observe_s": tracked[j].seconds, "inference_s": inference_s}
                 results[j] = finish_fit(tracked[j], problem, cfg, method="grad", parameters=parameters,
                                         diagnostics=diagnostics, theta_best=theta_best, draws=draws,
-                                        timings=timings, out=outs[j], seed=seed, overlay=overlay, progress=progress)
+                                        timings=timings, out=outs[j], seed=seed, overlay=overlay, progress=progress,
+                                        posterior=gauss_newton_posterior(res, problem.space, k_sum))
             except Exception as err:  # noqa: BLE001 - recorded for this video
                 results[j] = err
     return results
@@ -468,6 +511,16 @@ def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: P
                         obs.tracking.methods, obs.tracking.quality_min,
                         title=f"{report.video.name}: what the tracker saw")
         report.outputs["tracking_figure"] = str(path)
+    if report.posterior is not None:
+        from galileo_jax.inference.summary import inference_data
+
+        post = report.posterior
+        idata = inference_data(post.draws, obs, sample_stats=post.sample_stats,
+                               attrs={"method": report.method, "draws_kind": post.kind, "video": str(report.video),
+                                      "scene": report.scene.name, "seed": seed})
+        path = out / "posterior.nc"
+        write_netcdf(path, idata)
+        report.outputs["posterior"] = str(path)
     if overlay:
         from galileo_jax.report.overlay import write_overlay
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -84,7 +85,6 @@ def test_unknown_option_and_method(tmp_path):
 def test_seed_method_on_the_example(tmp_path):
     """The seed's coin-toss sampler through the CLI (16 x 75 proposals on the C engine): it gets
     k1 (the seed's NOTES: 'k1 is precise') and reports the engine."""
-    import json
 
     proc = run_cli("galileo_jax.fit", str(EXAMPLE), "--method", "seed", "--quiet", "--no-video", "--out",
                    str(tmp_path / "fit"))
@@ -98,6 +98,43 @@ def test_seed_method_on_the_example(tmp_path):
     assert isinstance(adequacy["adequate"], bool) and adequacy["noise_floor_m_per_s"] > 0
     assert adequacy["rmse_over_floor"] == pytest.approx(adequacy["rmse_m_per_s"] / adequacy["noise_floor_m_per_s"])
     assert f"fit adequacy: {adequacy['verdict']}" in proc.stdout
+    assert not (tmp_path / "fit" / "posterior.nc").exists()  # the seed's sampler keeps no chains
+
+
+@pytest.mark.parametrize("method", ["mh", "grad"])
+def test_posterior_netcdf_reproduces_the_summaries(tmp_path, method):
+    """posterior.nc opens with az.from_netcdf: mh's chains (chain x draw, with lp and the total
+    log-likelihood in sample_stats) whose medians and 90% intervals ARE result.json's; grad's
+    Gauss-Newton approximation as 1000 draws of one chain whose quantiles match the reported
+    interval; the observed velocity profile (trace x time) in observed_data."""
+    import arviz as az
+
+    opts = ["--chains", "4", "--warmup", "40", "--samples", "60"] if method == "mh" else []
+    proc = run_cli("galileo_jax.fit", str(EXAMPLE), "--method", method, *opts, "--quiet", "--no-video", "--out",
+                   str(tmp_path / "fit"))
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "fit" / "result.json").read_text())
+    idata = az.from_netcdf(str(tmp_path / "fit" / "posterior.nc"))
+    assert {"posterior", "observed_data"} <= set(idata.groups())
+    post = idata.posterior
+    assert post.attrs["method"] == method
+    assert dict(idata.observed_data["velocity_profile"].sizes) == {"trace": 4, "time": result["observation"]["n_frames"] - 1}
+    if method == "mh":
+        assert dict(post.sizes) == {"chain": 4, "draw": 60} and post.attrs["draws_kind"] == "mcmc"
+        assert set(idata.sample_stats.data_vars) == {"lp", "log_likelihood_total"}
+    else:
+        assert dict(post.sizes) == {"chain": 1, "draw": 1000} and post.attrs["draws_kind"] == "gauss_newton"
+    for name in ("k1", "k2", "phi"):
+        x = post[name].values.ravel()
+        reported = result["parameters"][name]
+        lo, hi = np.quantile(x, [0.05, 0.95])
+        if method == "mh":
+            assert np.median(x) == pytest.approx(reported["median"], abs=1e-12)
+            assert [lo, hi] == pytest.approx(reported["interval90"], abs=1e-12)
+        else:  # the draws of the approximation the intervals come from
+            width = reported["interval90"][1] - reported["interval90"][0]
+            assert np.median(x) == pytest.approx(reported["estimate"], abs=0.1 * width)
+            assert [lo, hi] == pytest.approx(reported["interval90"], abs=0.15 * width)
 
 
 def test_bad_config_file(tmp_path):

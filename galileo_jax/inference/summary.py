@@ -139,14 +139,8 @@ def summarize_mh(result, space: ParamSpace, key: jax.Array | None = None) -> dic
     loglik = np.asarray(result.loglik, np.float64)
     ibest = np.unravel_index(np.argmax(loglik), loglik.shape)
 
-    draws: dict[str, np.ndarray] = {n: theta[..., j] for j, n in enumerate(space.names)}
+    draws = posterior_draws(theta, space, key)
     phi = phi_of(space, theta)
-    if phi is not None and "phi" not in draws and space.mass_mode == "free":
-        draws["phi"] = np.asarray(phi, np.float64)
-    masses = np.asarray(space.masses_for_report(jnp.asarray(theta, jnp.float64), key), np.float64)
-    for i in range(space.n_objects):
-        if space.known_mass[i] is None and f"m{i + 1}" not in draws:
-            draws[f"m{i + 1}"] = masses[..., i]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         idata = az.from_dict(posterior=draws)
@@ -187,6 +181,71 @@ def summarize_mh(result, space: ParamSpace, key: jax.Array | None = None) -> dic
         "rhat_ok": mixing_warning(params) is None,
     }
     return {"method": "mh", "parameters": params, "diagnostics": diagnostics}
+
+
+def posterior_draws(theta: np.ndarray, space: ParamSpace, key=None) -> dict[str, np.ndarray]:
+    """Named draws of the reported quantities: every coordinate of ``space`` and, where the
+    fit does not sample them directly, phi and the masses as reported (prior-conditioned where
+    not identifiable: :meth:`~galileo_jax.params.ParamSpace.masses_for_report`, from ``key``).
+
+    Args:
+        theta: (..., d) draws in physical coordinates, e.g. (chains, draws, d).
+        space: the fit's parameter space (d = ``space.dim``).
+        key: JAX key for the masses' prior-conditioned draws (default key 0).
+
+    Returns:
+        {name: (...) array}, in the units of the parameters (kg, 1, s, ...).
+    """
+    theta = np.asarray(theta, np.float64)
+    key = jax.random.key(0) if key is None else key
+    draws: dict[str, np.ndarray] = {n: theta[..., j] for j, n in enumerate(space.names)}
+    phi = phi_of(space, theta)
+    if phi is not None and "phi" not in draws and space.mass_mode == "free":
+        draws["phi"] = np.asarray(phi, np.float64)
+    masses = np.asarray(space.masses_for_report(jnp.asarray(theta, jnp.float64), key), np.float64)
+    for i in range(space.n_objects):
+        if space.known_mass[i] is None and f"m{i + 1}" not in draws:
+            draws[f"m{i + 1}"] = masses[..., i]
+    return draws
+
+
+def inference_data(draws: dict[str, np.ndarray], observation, *, sample_stats: dict | None = None,
+                   attrs: dict | None = None):
+    """The posterior of a fit as ArviZ ``InferenceData`` (``az.from_dict``), the form the
+    field's tools read (``az.summary``, ``az.plot_forest``, ``az.from_netcdf``).
+
+    Args:
+        draws: {name: (chains, draws) array} (:func:`posterior_draws`; an approximation's
+            draws as one chain).
+        observation: the fit's :class:`~galileo_jax.observation.Observation`: its velocity
+            profile (trace, sample) in m/s, the sample times (s, mid-frame) and the fit
+            window go into ``observed_data``.
+        sample_stats: optional {name: (chains, draws) array}, e.g. ``lp`` (log posterior
+            density, nats) and ``log_likelihood_total`` (nats).
+        attrs: optional attributes of the posterior group (method, video, approximation ...);
+            strings and numbers.
+
+    Returns:
+        ``arviz.InferenceData`` with groups posterior, observed_data (and sample_stats).
+    """
+    import arviz as az
+
+    from galileo_jax.observation import trace_names
+
+    t = np.asarray(observation.frame_times, np.float64)
+    coords = {"trace": trace_names(observation.n_objects), "time": 0.5 * (t[1:] + t[:-1])}
+    observed = {"velocity_profile": np.asarray(observation.profile, np.float64),
+                "fit_window": np.asarray(observation.mask, bool)}
+    dims = {"velocity_profile": ["trace", "time"], "fit_window": ["time"]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        idata = az.from_dict(posterior={k: np.asarray(v, np.float64) for k, v in draws.items()},
+                             sample_stats=None if sample_stats is None else
+                             {k: np.asarray(v, np.float64) for k, v in sample_stats.items()},
+                             observed_data=observed, coords=coords, dims=dims)
+    idata.posterior.attrs.update({k: v for k, v in (attrs or {}).items() if v is not None})
+    idata.observed_data["velocity_profile"].attrs["units"] = "m/s"
+    return idata
 
 
 def summarize_grad(result, space: ParamSpace) -> dict:

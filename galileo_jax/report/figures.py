@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from galileo_jax.observation import trace_names  # noqa: E402
 from galileo_jax.report.results import atomic_path  # noqa: E402
 
 
@@ -23,11 +24,6 @@ def _save(fig, path, title: str | None, layout: bool = True) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
-
-
-def trace_names(n_objects: int) -> list[str]:
-    """Names of the profile's rows: "object 1 x", "object 1 y", ... (y is vertical, up)."""
-    return [f"object {i + 1} {axis}" for i in range(n_objects) for axis in ("x", "y")]
 
 
 def profile_figure(path: str | Path, times: np.ndarray, observed: np.ndarray, simulated: np.ndarray,

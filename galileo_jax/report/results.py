@@ -75,3 +75,10 @@ def write_json(path: str | Path, data: dict) -> None:
     """Write ``data`` as indented JSON, atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(to_jsonable(data), indent=2) + "\n")
+
+
+def write_netcdf(path: str | Path, idata) -> None:
+    """Write an ArviZ ``InferenceData`` to ``path`` (netCDF4/HDF5, ``az.from_netcdf`` reads it)
+    atomically: an existing file is replaced only once the new one is complete."""
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(str(tmp))
