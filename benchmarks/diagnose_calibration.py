@@ -231,7 +231,8 @@ def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> f
     """RMSE (m/s) of the simulation at the TRUE parameters (hidden effects included, true
     release time) against the tracked profile, on the engine ``diagnose`` fits that model on
     (:func:`galileo_jax.diagnosis.model_engine`): the best any fit of the right model can do."""
-    from galileo_jax.diagnosis import DiagnoseSettings, model_engine, profile_rmse
+    from galileo_jax.criticism import profile_rmse
+    from galileo_jax.diagnosis import DiagnoseSettings, model_engine
     from galileo_jax.inference.problem import Problem
 
     problem = Problem(scene, obs, effects=effects, engine=model_engine([scene], effects, DiagnoseSettings()))

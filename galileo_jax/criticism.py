@@ -820,7 +820,6 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
     }
 
 
-
 #: Velocity jump (m/s) that marks a contact event for the adequacy check (:func:`calm_mask`).
 #: Lower than the test likelihood's EVENT_JUMP: a gentle second collision (a 0.09 m/s jump,
 #: rendered video without a hidden effect) that MJX resolves one frame off the renderer leaves
@@ -833,6 +832,21 @@ ADEQUATE_RATIO = 1.3
 #: a hidden effect: 0.4-1.3x, 2.3x where MJX and the renderer part at a second collision; see
 #: :mod:`galileo_jax.diagnosis`, step 3).
 ADEQUATE_RATIO_ALL = 1.6
+
+
+def profile_rmse(observation: Observation, simulated: np.ndarray) -> float:
+    """RMSE (m/s) of observed - simulated (2n, N-1) velocity over the fit window, all traces together."""
+    m = np.asarray(observation.mask, bool)
+    d = (np.asarray(observation.profile) - np.asarray(simulated))[:, m]
+    return float(np.sqrt(np.mean(d**2)))
+
+
+def within_floor(rmse_calm: float, rmse: float, floor: float, ratio: float = ADEQUATE_RATIO,
+                 ratio_all: float = ADEQUATE_RATIO_ALL) -> bool:
+    """The adequacy rule (``diagnose``'s step 3, every fit's verdict): RMSE away from contact
+    events ``rmse_calm`` <= ``ratio`` x the noise ``floor`` and RMSE over all samples ``rmse`` <=
+    ``ratio_all`` x the floor (all m/s)."""
+    return rmse_calm <= ratio * floor and rmse <= ratio_all * floor
 
 
 def calm_mask(observation: Observation, simulated: np.ndarray) -> np.ndarray:
@@ -871,18 +885,17 @@ def adequacy(observation: Observation, simulated: np.ndarray, poses: np.ndarray,
     """
     s = summarize(observation, simulated, poses, sd_model, alpha)
     diff = np.asarray(observation.profile) - np.asarray(simulated)
-    m = np.asarray(observation.mask, bool)
-    rmse = float(np.sqrt(np.mean(diff[:, m] ** 2)))
+    rmse = profile_rmse(observation, simulated)
     calm = calm_mask(observation, simulated)
     rmse_calm = float(np.sqrt(np.mean(diff[calm] ** 2))) if calm.any() else rmse
-    fraction = float(calm.sum() / max(diff.shape[0] * int(m.sum()), 1))
+    fraction = float(calm.sum() / max(diff.shape[0] * int(np.sum(observation.mask)), 1))
     floor = float(s["noise_floor"])
     ratio = rmse / floor if floor > 0 else float("inf")
     ratio_calm = rmse_calm / floor if floor > 0 else float("inf")
-    ok = ratio_calm <= ADEQUATE_RATIO and ratio <= ADEQUATE_RATIO_ALL
+    ok = within_floor(rmse_calm, rmse, floor)
     if ok:
-        text = (f"The model describes the video: away from contact events its RMSE is {ratio_calm:.1f}x the noise floor "
-                f"({rmse_calm:.4f} m/s on {100 * fraction:.0f}% of the samples; {rmse:.4f} m/s, {ratio:.1f}x, on all; "
+        text = (f"The model describes the video: away from contact events its RMSE is {ratio_calm:.1f}x the noise "
+                f"floor ({rmse_calm:.4f} m/s on {100 * fraction:.0f}% of the samples; {rmse:.4f} m/s, {ratio:.1f}x, on all; "
                 f"floor {floor:.4f} m/s).")
     else:
         text = s["verdict"] + f" RMSE {rmse:.4f} m/s, {ratio:.1f}x the noise floor ({floor:.4f} m/s)."

@@ -437,13 +437,6 @@ class Diagnosis:
                 "calibration": self.calibration(), "timings_s": self.timings}
 
 
-def profile_rmse(obs: Observation, simulated: np.ndarray) -> float:
-    """RMSE (m/s) of observed - simulated velocity over the fit window, all traces together."""
-    m = np.asarray(obs.mask, bool)
-    d = (np.asarray(obs.profile) - np.asarray(simulated))[:, m]
-    return float(np.sqrt(np.mean(d**2)))
-
-
 def pooled_rms(values: Sequence[float], weights: Sequence[float]) -> float:
     """sqrt(sum w v^2 / sum w): RMS values of several videos pooled by their sample counts."""
     v, w = np.asarray(values, np.float64), np.asarray(weights, np.float64)
@@ -591,7 +584,7 @@ def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
 def adequate(fit: ModelFit, rmse_calm: float, floor: float, settings: DiagnoseSettings) -> bool:
     """Step 3 of the module docstring: RMSE away from contact events <= ``adequate_ratio`` x the
     noise floor and RMSE on all samples <= ``adequate_ratio_all`` x the floor."""
-    return rmse_calm <= settings.adequate_ratio * floor and fit.rmse <= settings.adequate_ratio_all * floor
+    return criticism.within_floor(rmse_calm, fit.rmse, floor, settings.adequate_ratio, settings.adequate_ratio_all)
 
 
 def _adequate_round(rnd_info: dict, current: ModelFit, observations, masks, floor: float,
@@ -733,7 +726,7 @@ def simulate_video(problem: Problem, theta: np.ndarray) -> tuple[np.ndarray, np.
 
 def union_rmse(union: Union, theta: np.ndarray) -> float:
     """Profile RMSE (m/s) over every video's fit window at the union's ``theta``."""
-    rmse = [profile_rmse(p.observation, simulate_video(p, union.theta_for(j, theta))[1])
+    rmse = [criticism.profile_rmse(p.observation, simulate_video(p, union.theta_for(j, theta))[1])
             for j, p in enumerate(union.problems)]
     return pooled_rms(rmse, union.samples_used())
 
@@ -753,7 +746,8 @@ def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSett
         # the criticism keeps the fit's likelihood (0.05 m/s floor): its structure tests assume the
         # MA(1) noise model, and with the bare tracking noise (lag-1 correlation -> -1/2) the
         # whitened CUSUM flagged the heavy-tailed but unstructured residuals of a real clip (p = 4e-24)
-        videos.append(VideoFit(simulated, poses, p.likelihood.used_residuals(simulated), profile_rmse(obs, simulated),
+        videos.append(VideoFit(simulated, poses, p.likelihood.used_residuals(simulated),
+                               criticism.profile_rmse(obs, simulated),
                                criticism.summarize(obs, simulated, poses, settings.sd_model), z_test))
     n_used = union.samples_used()
     name = "base" if not free_effects else "base + " + " + ".join(free_effects)

@@ -384,8 +384,8 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
-    parameters, diagnostics, theta_best, draws, posterior = _estimate_and_draws(problem, method, cfg, key, progress, init,
-                                                                       tracked.cnn_model)
+    parameters, diagnostics, theta_best, draws, posterior = _estimate_and_draws(problem, method, cfg, key, progress,
+                                                                                 init, tracked.cnn_model)
     diagnostics["engine"] = problem.simulator_engine
     timings = {"observe_s": tracked.seconds, "inference_s": time.perf_counter() - t}
     return finish_fit(tracked, problem, cfg, method=method, parameters=parameters, diagnostics=diagnostics,
@@ -414,13 +414,14 @@ def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: st
         band = np.quantile(profiles, [0.05, 0.95], axis=0)
     rmse = _rmse(obs, simulated)
     prediction = _prediction(problem, scene, obs, theta_best, draws, cfg.prediction.tail)
-    adequacy = criticism.adequacy(obs, simulated, simulated_poses(problem, theta_best), cfg.likelihood.sd_model)
+    poses = simulated_poses(problem, theta_best)
+    adequacy = criticism.adequacy(obs, simulated, poses, cfg.likelihood.sd_model)
     timings["simulate_and_predict_s"] = time.perf_counter() - t
 
     report = FitReport(tracked.video, scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
                        timings=timings, adequacy=adequacy, posterior=posterior)
     t = time.perf_counter()
-    _write_outputs(report, problem, theta_best, tracked.clip, out, cfg, seed, overlay, progress)
+    _write_outputs(report, poses, tracked.clip, out, cfg, seed, overlay, progress)
     timings["write_s"] = time.perf_counter() - t
     return report
 
@@ -492,8 +493,10 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
     return results
 
 
-def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: Path, cfg: FitConfig, seed: int,
+def _write_outputs(report: FitReport, poses: np.ndarray, clip, out: Path, cfg: FitConfig, seed: int,
                    overlay: bool, progress: bool) -> None:
+    """Write a fit's files into ``out``; ``poses`` (N, n, 3): the simulated poses at the estimate
+    (for the overlay)."""
     obs = report.observation
     out.mkdir(parents=True, exist_ok=True)
     times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
@@ -524,7 +527,6 @@ def _write_outputs(report: FitReport, problem: Problem, theta_best, clip, out: P
     if overlay:
         from galileo_jax.report.overlay import write_overlay
 
-        poses = simulated_poses(problem, theta_best)
         calib = calibration(report.scene.camera, anchor_px=obs.pixels[0, 0], anchor_world=obs.positions[0, 0])
         path = out / "overlay.mp4"
         write_overlay(path, clip.frames, obs.fps, report.scene, calib, poses, obs.pixels,

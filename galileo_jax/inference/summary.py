@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.observation import trace_names
 from galileo_jax.params import ParamSpace
 
 NOT_IDENTIFIABLE = ("not identifiable: velocities determine only phi = (m1 - m2) / (m1 + m2); "
@@ -229,8 +230,6 @@ def inference_data(draws: dict[str, np.ndarray], observation, *, sample_stats: d
         ``arviz.InferenceData`` with groups posterior, observed_data (and sample_stats).
     """
     import arviz as az
-
-    from galileo_jax.observation import trace_names
 
     t = np.asarray(observation.frame_times, np.float64)
     coords = {"trace": trace_names(observation.n_objects), "time": 0.5 * (t[1:] + t[:-1])}
