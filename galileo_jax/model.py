@@ -176,7 +176,9 @@ def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None) -> m
         may add cameras and lights before compiling.
     """
     spec = mujoco.MjSpec()
-    spec.modelname = scene.name.replace(" ", "_")
+    # One model name for every scene: MJX keeps the name table's offsets as static metadata,
+    # so a scene's own name would give each scene its own compiled programs.
+    spec.modelname = "galileo_scene"
     opt = spec.option
     opt.gravity = [0.0, 0.0, -scene.gravity]
     opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL

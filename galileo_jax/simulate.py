@@ -21,8 +21,10 @@ depend on the masses only through their ratio (tested in ``tests/test_physics.py
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import NamedTuple
 
 import jax
@@ -60,6 +62,31 @@ class PhysParams(NamedTuple):
     effects: jax.Array | None = None
 
 
+class SimArrays(NamedTuple):
+    """The numbers of a scene's simulator, passed to compiled programs as data (a pytree).
+
+    Two scenes of one structure (same objects, shapes and contact pairs; another ramp angle,
+    ramp length, start position, object size or board thickness) have arrays of the same
+    shapes, so one compiled program serves both: :meth:`Simulator.with_arrays` puts these
+    (traced) arrays into the program's simulator. See :func:`structure_key`.
+
+    Attributes:
+        model: the MJX model (every array of it: geometry, masses, frictions, timestep).
+        data0: the MJX data at rest at the start positions.
+        base: the objects' compile-time mass, inertia and inverse weights (``Simulator.base``).
+        ramp_angle: () ramp angle in rad (:class:`~galileo_jax.effects.EffectContext`).
+        gravity: () g in m/s^2.
+        downhill: (3,) unit vector down the slope, world frame.
+    """
+
+    model: mjx.Model
+    data0: mjx.Data
+    base: dict
+    ramp_angle: jax.Array
+    gravity: jax.Array
+    downhill: jax.Array
+
+
 class Trajectory(NamedTuple):
     """A rollout sampled at every physics step.
 
@@ -91,6 +118,21 @@ class Simulator:
     ctx: EffectContext | None = None
     engine: str = "mjx"
 
+    @cached_property
+    def arrays(self) -> SimArrays:
+        """This scene's numbers as a :class:`SimArrays` pytree (pass it into jitted functions)."""
+        ctx = self.ctx
+        return SimArrays(self.model, self.data0, {k: jnp.asarray(v) for k, v in self.base.items()},
+                         jnp.asarray(ctx.ramp_angle, jnp.float64), jnp.asarray(ctx.gravity, jnp.float64),
+                         jnp.asarray(ctx.downhill, jnp.float64))
+
+    def with_arrays(self, arrays: SimArrays) -> "Simulator":
+        """This simulator with the numbers ``arrays`` (traced inside a jitted function) in place
+        of its own: the simulator of another scene of the same :func:`structure_key`."""
+        ctx = dataclasses.replace(self.ctx, ramp_angle=arrays.ramp_angle, gravity=arrays.gravity,
+                                  downhill=arrays.downhill)
+        return dataclasses.replace(self, model=arrays.model, data0=arrays.data0, base=arrays.base, ctx=ctx)
+
     @property
     def effect_names(self) -> tuple[str, ...]:
         """Names of the effect parameters (layout of ``PhysParams.effects``)."""
@@ -113,6 +155,9 @@ def physics_timestep(fps: float, substeps: int) -> float:
     At 29.97 fps and 8 substeps this is 1/239.76 s, the seed's 1/240 s aligned to frames.
     """
     return 1.0 / (fps * substeps)
+
+
+_forward = jax.jit(mjx.forward)
 
 
 def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx") -> Simulator:
@@ -141,11 +186,11 @@ def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx") ->
         simulate_c.check_supported(effects)
     dt = physics_timestep(fps, scene.simulation.substeps)
     mj_model, index = build_model(scene, timestep=dt, effects=effects)
-    model = mjx.put_model(mj_model)
+    model = _shareable(mj_model, mjx.put_model(mj_model))
     data0 = mjx.make_data(model)
     # Run forward once: gives consistent dtypes for the contact fields under scan (float64)
-    # and fills derived quantities.
-    data0 = jax.jit(mjx.forward)(model, data0)
+    # and fills derived quantities (one jitted function: compiled once per scene structure).
+    data0 = _forward(model, data0)
     bodies = np.asarray(index.body)
     base = {
         "body_mass": np.asarray(mj_model.body_mass[bodies]),
@@ -154,6 +199,36 @@ def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx") ->
         "dof_invweight0": np.stack([mj_model.dof_invweight0[d:d + 6] for d in index.dof]),
     }
     return Simulator(scene, mj_model, model, data0, index, dt, base, effects, make_context(scene, index, dt), engine)
+
+
+def _shareable(mj_model: mujoco.MjModel, model: mjx.Model) -> mjx.Model:
+    """The MJX model with the one size-dependent static field our scenes do not use made constant.
+
+    MJX keeps ``geom_rbound_hfield`` (bounding radii, read only to collide with a height
+    field) as static metadata of the model's pytree, so two scenes whose objects differ in size
+    would have different pytree structures and never share a compiled program. Our scenes have
+    no height field; the field is set to zeros there.
+    """
+    if mj_model.nhfield:
+        return model
+    impl = model._impl
+    rbound = np.asarray(impl.geom_rbound_hfield)
+    return model.replace(_impl=impl.replace(geom_rbound_hfield=np.zeros_like(rbound)))
+
+
+def structure_key(sim: Simulator) -> tuple:
+    """What a compiled program of ``sim`` depends on besides :attr:`Simulator.arrays`.
+
+    Equal keys: the programs of one simulator serve the other with its own arrays
+    (:meth:`Simulator.with_arrays`). The key holds the pytree structures of the MJX model and
+    data (MJX keeps geom types, body tree and contact pairs there as static metadata), the
+    object index, the effects' static context, the timestep and the engine. The C MuJoCo
+    engine reads the ``MjModel`` itself on the host, so there the scene's own key is used.
+    """
+    ctx = sim.ctx
+    static_ctx = (ctx.n_objects, ctx.on_ramp, ctx.object_pair, ctx.bodies, ctx.dofs, ctx.ramp_pairs, ctx.floor_pairs)
+    structure = jax.tree_util.tree_structure((sim.model, sim.data0, sim.arrays.base))
+    return ("structure", structure, sim.index, static_ctx, sim.effects, sim.dt, sim.engine)
 
 
 def scene_effects(scene: Scene, extra=()) -> tuple:

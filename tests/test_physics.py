@@ -148,3 +148,36 @@ def test_velocity_profile_shape_and_forward_derivatives_are_finite(one_object):
     sel = np.asarray(t_mid) > 0.1
     rel = np.abs(np.asarray(jac[0])[sel] / expected[sel] - 1)
     assert rel.max() < 0.05, rel
+
+
+def test_scenes_of_one_structure_share_compiled_programs():
+    """A new ramp angle, ramp length, start position and box size (every user's video is its own
+    scene) reuse the programs compiled for another scene, and each scene is still simulated with
+    its own numbers: the slide on a 30 degree ramp through the 20 degree scene's program matches
+    g (sin 30 - k cos 30), and the initial push (whose release delay reads the ramp angle) gives
+    exactly what the new scene's own, separately compiled program gives."""
+    from galileo_jax.inference.problem import Problem, simulated_observation
+
+    a = _one_object_scene(20.0)
+    b = scene_from_dict({"name": "another ramp", "ramp": {"angle_deg": 30.0, "length": 1.6},
+                         "objects": [{"shape": "box", "size": [0.07, 0.06, 0.05], "start": 1.5}],
+                         "camera": {"pixels_per_metre": 500}})
+    truth = PhysParams(jnp.asarray([1.0]), jnp.asarray([0.2]))
+    for effects in ((), ("initial_push",)):
+        pa, pb = (Problem(s, simulated_observation(s, truth, duration=0.8, release_time=0.1, effects=()),
+                          effects=effects) for s in (a, b))
+        assert pa.static_key == pb.static_key and pa.sim is not pb.sim
+        theta = np.array([0.2 if n == "k1" else 0.3 if n == "v0" else 0.0 for n in pb.names])
+        pa.simulate(theta)
+        prof = np.asarray(pb.simulate(theta))
+        assert pb.jitted("simulate", None)._cache_size() == 1  # one program for both scenes
+        eng, own = pb.engine, pb.data._replace(physics=None)  # b's numbers as constants of its own program
+        expected = np.asarray(jax.jit(lambda t: eng.profile_theta(t, own))(theta))[..., :pb.n_samples]
+        np.testing.assert_allclose(prof, expected, rtol=0, atol=1e-10)
+        if not effects:
+            speed = np.hypot(prof[0], prof[1])
+            t = pb.observation.frame_times[1:] - 0.5 / 30.0
+            sel = (t > 0.2) & (t < 0.7)
+            slope = np.polyfit(t[sel], speed[sel], 1)[0]
+            expected_a = G * (math.sin(math.radians(30.0)) - 0.2 * math.cos(math.radians(30.0)))
+            assert abs(slope / expected_a - 1) < 0.02, (slope, expected_a)

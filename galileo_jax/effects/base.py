@@ -36,7 +36,7 @@ code runs inside the jitted MJX rollout and, on NumPy inputs, in the C MuJoCo re
   leaves when a push-free one released at the fitted time would have reached v0.
 
 ``values`` is the (n_params,) array of the effect's parameters in the order of ``params``;
-``state`` a :class:`BodyState`; ``ctx`` the static :class:`EffectContext`.
+``state`` a :class:`BodyState`; ``ctx`` the scene's :class:`EffectContext`.
 
 Registry: :func:`register_effect` adds an effect under its name (a user's own effect takes a
 few lines, see ``tests/test_effects.py``); third-party packages can expose effects through the
@@ -74,7 +74,11 @@ class BodyState(NamedTuple):
 
 @dataclass(frozen=True)
 class EffectContext:
-    """Static facts about the scene an effect may use (Python values, not traced).
+    """Facts about the scene an effect may use.
+
+    ``ramp_angle``, ``gravity`` and ``downhill`` are numbers of the scene: inside a compiled
+    program they are traced arrays (:meth:`~galileo_jax.simulate.Simulator.with_arrays`), so
+    hooks use ``jnp`` on them, never ``math``. The other fields are static Python values.
 
     Attributes:
         n_objects: number of free objects.

@@ -227,7 +227,7 @@ def _initial_push_delay(values, k, ctx):
     # where the base fit put it: v0 and the release time no longer trade off. Smoothly capped.
     if not ctx.on_ramp[0]:
         return jnp.zeros(())
-    a = ctx.gravity * (math.sin(ctx.ramp_angle) - jnp.asarray(k)[0] * math.cos(ctx.ramp_angle))
+    a = ctx.gravity * (jnp.sin(ctx.ramp_angle) - jnp.asarray(k)[0] * jnp.cos(ctx.ramp_angle))
     a = jnp.maximum(a, PUSH_MIN_ACCEL)
     x = values[0] / a
     return x / (1.0 + (x / PUSH_MAX_DELAY) ** 4) ** 0.25

@@ -97,9 +97,10 @@ def stack_data(problems: Sequence[Problem]) -> tuple[Engine, ProblemData]:
         raise ValueError("fit_grad_batch needs at least one video, got none")
     if not all(isinstance(p, Problem) for p in problems):
         raise ValueError("fit_grad_batch fits single-video Problems; a joint fit of several videos is fit_grad")
-    compat = {p.engine.key[:4] + p.engine.key[5:] for p in problems}
+    compat = {p.engine.key[:-1] for p in problems}  # all but the rollout length
     if len(compat) > 1:
-        raise ValueError(f"a batch needs videos of one scene, frame rate, effects and engine; got {len(compat)} "
+        raise ValueError("a batch needs videos of one scene structure, frame rate, effects and engine; got "
+                         f"{len(compat)} "
                          "different ones (fit each group as its own batch)")
     meta = {(p.likelihood.kind, p.likelihood.sd_model, p.likelihood.whiten.shape) for p in problems}
     if len(meta) > 1:

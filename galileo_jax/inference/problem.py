@@ -8,14 +8,16 @@ Code and data are kept apart, so that one compiled program serves many videos:
 * :class:`Engine` is the static part: the MJX simulator of the scene (with its effects), the
   parameter space, the likelihood kind and the rollout lengths. Its methods are the pure
   functions of the problem, ``f(z, data)``; they never read an observation.
-* :class:`ProblemData` is the observation-dependent part, a pytree of arrays (frame times,
+* :class:`ProblemData` is the video-dependent part, a pytree of arrays (frame times,
   release time, the :class:`~galileo_jax.likelihood.Likelihood` with the observed profile and
-  its whitening), passed INTO the jitted functions as an argument.
+  its whitening, and the scene's own numbers, :class:`~galileo_jax.simulate.SimArrays`),
+  passed INTO the jitted functions as an argument.
 
-Every :class:`Problem` of the same scene, effects and (bucketed) video length
-shares one Engine and one set of jitted functions (module-level caches), so a second video of
-a scene costs no tracing or compilation in the same process, and JAX's persistent cache serves
-the next process. Shapes are bucketed: the profile is padded to a multiple of
+Every :class:`Problem` of the same scene structure (:func:`~galileo_jax.simulate.structure_key`:
+the objects, their shapes and contacts, not the ramp angle, lengths, start positions or
+sizes), effects and (bucketed) video length shares one set of jitted functions (module-level
+caches), so a second video, even of a new scene, costs no tracing or compilation in the same
+process, and JAX's persistent cache serves the next process. Shapes are bucketed: the profile is padded to a multiple of
 :data:`PAD_SAMPLES` samples (padding is outside the likelihood's mask) and rollouts cover a
 whole number of :data:`PAD_SAMPLES`-frame blocks after the release.
 
@@ -49,8 +51,8 @@ from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, Likelihood, m
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import (PhysParams, Simulator, make_simulator, rollout, sample_poses, scene_effects,
-                                  steps_needed, velocity_profile)
+from galileo_jax.simulate import (PhysParams, SimArrays, Simulator, make_simulator, rollout, sample_poses,
+                                  scene_effects, steps_needed, structure_key, velocity_profile)
 
 #: Default central-difference step in unconstrained coordinates z (see inference/grad.py for
 #: the measurement that chose it).
@@ -146,21 +148,29 @@ class ProblemData(NamedTuple):
         frame_times: (M + 1,) frame times in s (padded past the video's end at 1 / fps).
         release_time: () video time in s at which the objects are released.
         likelihood: the observation's :class:`~galileo_jax.likelihood.Likelihood`, length M.
+        physics: the scene's :class:`~galileo_jax.simulate.SimArrays` (None: the engine's own
+            scene; only for callers that jit an engine's functions themselves).
     """
 
     frame_times: jax.Array
     release_time: jax.Array
     likelihood: Likelihood
+    physics: SimArrays | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class Engine:
     """The static part of a :class:`Problem` (module docstring): shared, never holds an observation.
 
+    One Engine per scene and settings; engines of scenes of one structure share ``key`` and so
+    their jitted functions (:func:`cached_jit`). Its pure functions therefore take the scene's
+    numbers from ``data.physics`` (:meth:`sim_for`), never from ``sim``.
+
     Attributes:
-        key: hashable identity (scene physics, fps, effects, rollout length, batch size). The
+        key: hashable identity of the compiled programs: (scene structure, fps, effects, batch
+            size, engine, parameter space, rollout length in s; see :func:`get_engine`). The
             likelihood's kind is static metadata of its pytree, so jit tells kinds apart itself.
-        sim: the MJX simulator.
+        sim: the simulator of the engine's own scene.
         space: the parameter space.
         n_steps: physics steps of a rollout (static).
         max_batch: largest vmapped batch of rollouts.
@@ -172,10 +182,15 @@ class Engine:
     n_steps: int
     max_batch: int
 
+    def sim_for(self, data: ProblemData) -> Simulator:
+        """The simulator of ``data``'s scene: ``sim`` with ``data.physics`` in place of its numbers
+        (``sim`` itself where ``data.physics`` is None)."""
+        return self.sim if data.physics is None else self.sim.with_arrays(data.physics)
+
     def profile_physical(self, params: PhysParams, data: ProblemData) -> jax.Array:
         """Unbatched simulated profile (2n, M) in m/s for :class:`PhysParams`, released at the
         tracker's estimate (pure)."""
-        return velocity_profile(self.sim, params, data.frame_times, data.release_time, self.n_steps)
+        return velocity_profile(self.sim_for(data), params, data.frame_times, data.release_time, self.n_steps)
 
     def release_time(self, theta: jax.Array, data: ProblemData) -> jax.Array:
         """Video time (s) at which the simulated objects start to move at theta (d,) (pure): the
@@ -186,7 +201,7 @@ class Engine:
         if any(e.release_delay is not None for e in effects):
             params = self.space.physical(theta)
             release = release + release_delay(effects, split_values(effects, params.effects), params.friction,
-                                              self.sim.ctx)
+                                              self.sim_for(data).ctx)
         return release
 
     def profile_theta(self, theta: jax.Array, data: ProblemData) -> jax.Array:
@@ -194,7 +209,8 @@ class Engine:
         released at :meth:`release_time`, velocities stretched by the scale factor
         1 + ``scale_error`` (1 when the scale is exact)."""
         release = self.release_time(theta, data)
-        profile = velocity_profile(self.sim, self.space.physical(theta), data.frame_times, release, self.n_steps)
+        profile = velocity_profile(self.sim_for(data), self.space.physical(theta), data.frame_times, release,
+                                   self.n_steps)
         return profile * self.space.scale_factor(theta)
 
     def profile_z(self, z: jax.Array, data: ProblemData) -> jax.Array:
@@ -213,7 +229,7 @@ class Engine:
     def poses(self, theta: jax.Array, data: ProblemData) -> jax.Array:
         """(M + 1, n_objects, 3) simulated poses (x m, z m, pitch rad) at the frame times (pure),
         as the camera sees them: displacements from the start stretched by 1 + ``scale_error``."""
-        traj = rollout(self.sim, self.space.physical(theta), self.n_steps)
+        traj = rollout(self.sim_for(data), self.space.physical(theta), self.n_steps)
         poses = sample_poses(traj, data.frame_times - self.release_time(theta, data))
         start = poses[:1, :, :2]
         xy = start + self.space.scale_factor(theta) * (poses[..., :2] - start)
@@ -247,14 +263,18 @@ def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_bat
     simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.simulate.make_simulator`)."""
     early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
     length = _blocks(seconds + early, fps)
-    key = (scene_key(scene), float(scene.camera.scale_tolerance or 0.0), float(fps), tuple(effects), length, int(max_batch),
-           engine)
-    if key in _ENGINES:
-        _ENGINES.move_to_end(key)
-        return _ENGINES[key]
+    settings = (float(fps), tuple(effects), int(max_batch), engine)
+    scene_id = ("scene", scene_key(scene), float(scene.camera.scale_tolerance or 0.0))
+    own = scene_id + settings + (length,)
+    if own in _ENGINES:
+        _ENGINES.move_to_end(own)
+        return _ENGINES[own]
     sim = make_simulator(scene, float(fps), effects, engine)
-    engine = Engine(key, sim, ParamSpace.from_scene(scene, effects), steps_needed(sim, length), int(max_batch))
-    _ENGINES[key] = engine
+    space = ParamSpace.from_scene(scene, effects)
+    # The C engine's rollouts read the MjModel on the host: its programs are the scene's own.
+    shared = structure_key(sim) if engine == "mjx" else scene_id
+    engine = Engine((shared,) + settings + (space, length), sim, space, steps_needed(sim, length), int(max_batch))
+    _ENGINES[own] = engine
     while len(_ENGINES) > _ENGINES_SIZE:
         _ENGINES.popitem(last=False)
     return engine
@@ -362,7 +382,7 @@ class Problem(BatchedAPI):
         ft = padded_frame_times(observation.frame_times, fps, n_pad)
         self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch, engine)
         release = float(observation.release_time)
-        self.data = ProblemData(jnp.asarray(ft), jnp.asarray(release), lik)
+        self.data = ProblemData(jnp.asarray(ft), jnp.asarray(release), lik, self.engine.sim.arrays)
         self.n_samples = n
 
     # ------------------------------------------------------------------ static parts
