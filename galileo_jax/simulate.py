@@ -72,7 +72,7 @@ class SimArrays(NamedTuple):
 
     Attributes:
         model: the MJX model (every array of it: geometry, masses, frictions, timestep).
-        data0: the MJX data at rest at the start positions.
+        data0: the MJX data at rest at the start positions (forwarded on the MJX engine only).
         base: the objects' compile-time mass, inertia and inverse weights (``Simulator.base``).
         ramp_angle: () ramp angle in rad (:class:`~galileo_jax.effects.EffectContext`).
         gravity: () g in m/s^2.
@@ -188,9 +188,12 @@ def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx") ->
     mj_model, index = build_model(scene, timestep=dt, effects=effects)
     model = _shareable(mj_model, mjx.put_model(mj_model))
     data0 = mjx.make_data(model)
-    # Run forward once: gives consistent dtypes for the contact fields under scan (float64)
-    # and fills derived quantities (one jitted function: compiled once per scene structure).
-    data0 = _forward(model, data0)
+    if engine == "mjx":
+        # Run forward once: gives consistent dtypes for the contact fields under scan (float64)
+        # and fills derived quantities (one jitted function: compiled once per scene structure).
+        # The C engine starts from the MjModel's own state and never reads data0: tracing MJX's
+        # forward cost a CPU fit 4.6 s per process.
+        data0 = _forward(model, data0)
     bodies = np.asarray(index.body)
     base = {
         "body_mass": np.asarray(mj_model.body_mass[bodies]),
