@@ -14,6 +14,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from galileo_jax.errors import GalileoError
+from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
 
 
 class ConfigError(GalileoError):
@@ -65,8 +66,8 @@ class CNNConfig(_Strict):
 class LikelihoodConfig(_Strict):
     """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise."""
 
-    kind: str = "gaussian_iid"
-    sd_model: float = Field(0.05, ge=0)
+    kind: str = DEFAULT_KIND
+    sd_model: float = Field(DEFAULT_SD_MODEL, ge=0)
 
 
 class PredictionConfig(_Strict):

@@ -225,8 +225,9 @@ def structure_key(sim: Simulator) -> tuple:
     Equal keys: the programs of one simulator serve the other with its own arrays
     (:meth:`Simulator.with_arrays`). The key holds the pytree structures of the MJX model and
     data (MJX keeps geom types, body tree and contact pairs there as static metadata), the
-    object index, the effects' static context, the timestep and the engine. The C MuJoCo
-    engine reads the ``MjModel`` itself on the host, so there the scene's own key is used.
+    object index, the effects' static context, the timestep and the engine. (The C MuJoCo
+    engine reads the ``MjModel`` itself on the host; its problems are keyed by the scene:
+    :func:`~galileo_jax.inference.problem.get_engine`.)
     """
     ctx = sim.ctx
     static_ctx = (ctx.n_objects, ctx.on_ramp, ctx.object_pair, ctx.bodies, ctx.dofs, ctx.ramp_pairs, ctx.floor_pairs)
