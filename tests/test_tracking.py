@@ -470,6 +470,40 @@ def test_klt_track_left_on_the_scenery_gives_way_to_the_colour_track():
     np.testing.assert_allclose(out.pixels[:, 0], colour[0][0])
 
 
+def test_rough_pass_matches_an_object_on_new_scenery_against_the_scenery():
+    """An 11 px textured square whose look was taken on dark scenery, matched where it has
+    slid onto pale scenery: its 1 px ring of the old dark scenery (a third of a small object's
+    template) pulls a plain least-squares match about 6 px back towards the dark side. Matched
+    as a composite (its pixels against the template, the ring against the static scenery where
+    it now is), it is found within 0.5 px on either side of the boundary and far from it."""
+    from galileo_jax.observe.matte import _match, _template
+
+    H, W, side, ss = 120, 200, 11.0, 8
+    rng = np.random.default_rng(1)
+    scenery = np.zeros((H, W, 3), np.float32)
+    scenery[:, :100], scenery[:, 100:] = (40, 30, 60), (200, 210, 220)
+
+    def draw(centre):  # the square on the scenery, rendered at 8x8 samples per pixel
+        big = cv2.resize(scenery, None, fx=ss, fy=ss, interpolation=cv2.INTER_NEAREST)
+        v, u = (np.mgrid[0:H * ss, 0:W * ss] + 0.5) / ss
+        x0, y0 = centre[0] - side / 2, centre[1] - side / 2
+        inside = (u >= x0) & (u < x0 + side) & (v >= y0) & (v < y0 + side)
+        cell = ((np.floor((u - x0) / (side / 4)) + np.floor((v - y0) / (side / 4))) % 2).astype(bool)
+        big[inside & cell], big[inside & ~cell] = (60, 120, 230), (150, 90, 40)
+        img = cv2.resize(big, (W, H), interpolation=cv2.INTER_AREA)
+        return np.clip(img + rng.normal(0.0, 2.0, img.shape), 0, 255).astype(np.uint8)
+
+    start = np.array([60.3, 60.6])
+    tpl = _template(draw(start), start, (side / 2, side / 2), 0.0)
+    for x in (97.2, 102.7, 140.4):
+        centre = np.array([x, 60.6])
+        frame = draw(centre)
+        found = _match(frame, tpl, centre + [2.0, -1.5], 8.0, scenery=scenery)[0][0]
+        assert np.linalg.norm(found - centre) < 0.5, (x, found)
+    plain = _match(draw(np.array([97.2, 60.6])), tpl, np.array([99.2, 59.1]), 8.0)[0][0]
+    assert np.linalg.norm(plain - [97.2, 60.6]) > 2.0, plain  # the failure the composite removes
+
+
 def test_rough_pass_matches_a_motion_blurred_look():
     """A plain square moving 16 px during the exposure is a streak: its sharp look fits it
     badly (the RMS difference that, growing with the speed, had the rough pass lose a fast
@@ -515,7 +549,7 @@ def test_auto_falls_back_to_a_colour_track_that_lasts_longer(monkeypatch):
     px = np.stack([np.linspace(100.0, 300.0, N), np.full(N, 120.0)], axis=1)
     frames = np.zeros((N, 270, 480, 3), np.uint8)
 
-    def colour_tracks(frames, start, wins, methods, start_frame, fps, lost_at=40):
+    def colour_tracks(frames, start, wins, methods, start_frame, fps, tilts=None, lost_at=40):
         valid = np.arange(N) < lost_at
         return {i: (px + 60 * i, valid, valid.astype(float), lost_at, 0) for i in range(2)}
 
@@ -529,7 +563,7 @@ def test_auto_falls_back_to_a_colour_track_that_lasts_longer(monkeypatch):
     calib = calibration(scene.camera)
     out = track.track_scene(frames, np.stack([px[0], px[0] + 60]), scene, calib)
     assert out.methods[0] == "colour" and out.tracks.valid[:40, 0].all() and not out.tracks.valid[40:, 0].any()
-    monkeypatch.setattr(track, "_colour_tracks", lambda *a: colour_tracks(*a, lost_at=10))
+    monkeypatch.setattr(track, "_colour_tracks", lambda *a, **k: colour_tracks(*a, **k, lost_at=10))
     with pytest.raises(TrackingError, match="object 1 track lost at frame 20"):
         track.track_scene(frames, np.stack([px[0], px[0] + 60]), scene, calib)
 

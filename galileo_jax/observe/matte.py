@@ -79,6 +79,17 @@ BLUR_SPEED = 6.0
 #: ... over these shares of a frame's motion (the camera's shutter, as a share of the frame
 #: interval: 0.5 is the common 180-degree shutter).
 SHUTTERS = (0.5, 1.0)
+#: Speed (px per frame) from which the rough pass, while it does not know the camera's shutter,
+#: matches each object both sharp and motion-blurred, and counts which fits best (a vote).
+PROBE_SPEED = 12.0
+#: Votes after which the shutter is decided for the rest of the pass ("sharp": blurred looks are
+#: no longer tried; a blurred look of a sharp, textured object is smooth and fits the scenery
+#: about as well, so it may win where the object turns and its sharp look fits worse).
+SHUTTER_VOTES = 3
+#: Footprint area (px) under which the rough pass matches an object as a composite with the
+#: scenery (:func:`_match`; about 24 x 24 px: there the ring of background in its template is
+#: at least a sixth of it).
+COMPOSITE_AREA = 576
 #: Turn (rad) of the template tried either way when the rough pass searches wider.
 WIDE_TURN = math.radians(15.0)
 #: Relative change of an object's colour along its path (light, shading) that its palette
@@ -679,6 +690,7 @@ class _Template(NamedTuple):
     mask: np.ndarray
     centre: np.ndarray
     angle: float
+    core: np.ndarray  # the footprint itself (not grown): the pixels the object covers
 
 
 def _template(frame: np.ndarray, centre, half, angle: float) -> _Template | None:
@@ -686,9 +698,11 @@ def _template(frame: np.ndarray, centre, half, angle: float) -> _Template | None
     if box is None:
         return None
     lo, hi = box
-    mask = footprint((hi[1] - lo[1], hi[0] - lo[0]), centre, half, angle, grow=1.0, offset=lo)
+    size = (hi[1] - lo[1], hi[0] - lo[0])
+    mask = footprint(size, centre, half, angle, grow=1.0, offset=lo)
+    core = footprint(size, centre, half, angle, offset=lo) & mask
     return _Template(frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32), mask.astype(np.uint8),
-                     np.asarray(centre, float) - lo, float(angle))
+                     np.asarray(centre, float) - lo, float(angle), core.astype(np.uint8))
 
 
 def _turned(tpl: _Template, angle: float) -> _Template:
@@ -702,7 +716,8 @@ def _turned(tpl: _Template, angle: float) -> _Template:
     M = np.hstack([R, (tpl.centre - R @ tpl.centre)[:, None]])
     img = cv2.warpAffine(tpl.image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     mask = cv2.warpAffine(tpl.mask, M, (w, h), flags=cv2.INTER_NEAREST)
-    return _Template(img, mask, tpl.centre, angle)
+    core = cv2.warpAffine(tpl.core, M, (w, h), flags=cv2.INTER_NEAREST) & mask
+    return _Template(img, mask, tpl.centre, angle, core)
 
 
 def _evolve(tpl: _Template, frame: np.ndarray, centre, rate: float) -> _Template:
@@ -725,13 +740,29 @@ def _parabola(a: float, b: float, c: float) -> float:
     return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
 
 
-def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: int = 5
-           ) -> list[tuple[np.ndarray, float]]:
-    """Where the template fits best (least squared difference over its mask) within
-    ``radius`` px of ``predicted``: up to ``n_best`` local minima, best first, each the
-    object's centre (2,) px, to a fraction of a pixel (a parabola through the minimum), and
-    the RMS difference per channel there (grey levels); none if the search region leaves
-    the image."""
+def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: int = 5,
+           scenery: np.ndarray | None = None) -> list[tuple[np.ndarray, float]]:
+    """Where the template fits best within ``radius`` px of ``predicted``: up to ``n_best``
+    local minima, best first, each the object's centre (2,) px, to a fraction of a pixel (a
+    parabola through the minimum), and the RMS difference per channel there (grey levels);
+    none if the search region leaves the image.
+
+    Without ``scenery`` the fit is least squares over the template's mask (the object and a
+    1 px ring of the background it had when the template was taken). With ``scenery`` ((H, W,
+    3) float32, the static background) the object is matched as a composite and scored as a
+    likelihood ratio: its pixels (``tpl.core``) against the template, the ring against the
+    scenery where it now is (an object moving onto other scenery keeps its outline), plus a
+    penalty where the scenery alone explains the object's pixels better than the template does
+    (the core's sum of squares against the template minus that against the scenery, where
+    positive): a stretch of scenery
+    that resembles the object is no match, however well its colour fits (for a Gaussian pixel
+    noise the log-likelihood ratio of "object here" against "scenery here" is the difference
+    of those two sums of squares).
+
+    The composite costs about 2.5 times the plain fit; it is used for objects whose footprint
+    is under :data:`COMPOSITE_AREA` px, where the ring is a large part of the template (a third
+    at 11 px across, a twelfth at 50 px).
+    """
     h, w = tpl.mask.shape
     r = int(math.ceil(radius))
     lo = np.round(np.asarray(predicted, float) - tpl.centre).astype(int) - r
@@ -741,12 +772,10 @@ def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: 
     if hi[0] - lo[0] < w + 2 or hi[1] - lo[1] < h + 2:
         return []
     region = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
-    mask = np.repeat(tpl.mask[..., None], 3, axis=2)
-    ssd = cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=mask)
-    minima = (ssd <= cv2.erode(ssd, np.ones((5, 5), np.uint8))).nonzero()
-    order = np.argsort(ssd[minima])[:n_best]
+    composite = scenery is not None and int(tpl.core.sum()) < COMPOSITE_AREA
+    ssd = _match_score(region, scenery[lo[1]:hi[1], lo[0]:hi[0]] if composite else None, tpl)
     out = []
-    for y, x in zip(minima[0][order], minima[1][order]):
+    for y, x in _minima(ssd, n_best):
         dx = _parabola(ssd[y, x - 1], ssd[y, x], ssd[y, x + 1]) if 0 < x < ssd.shape[1] - 1 else 0.0
         dy = _parabola(ssd[y - 1, x], ssd[y, x], ssd[y + 1, x]) if 0 < y < ssd.shape[0] - 1 else 0.0
         rms = math.sqrt(max(float(ssd[y, x]), 0.0) / max(3 * int(tpl.mask.sum()), 1))
@@ -754,22 +783,52 @@ def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: 
     return out
 
 
-def _recentre(frames: np.ndarray, idx: np.ndarray, k: int, centre, half, angle: float, margin: float
+def _minima(ssd: np.ndarray, n: int) -> list[tuple[int, int]]:
+    """Up to ``n`` local minima (row, column) of a score map (5x5 neighbourhoods), best first."""
+    minima = (ssd <= cv2.erode(ssd, np.ones((5, 5), np.uint8))).nonzero()
+    order = np.argsort(ssd[minima])[:n]
+    return [(int(minima[0][j]), int(minima[1][j])) for j in order]
+
+
+def _match_score(region: np.ndarray, still: np.ndarray | None, tpl: _Template) -> np.ndarray:
+    """The score map of :func:`_match` (sum of squares, grey levels^2) for the template at
+    every offset in ``region`` ((h, w, 3) float32), with ``still`` the scenery there (NaN
+    where unknown) or None."""
+    if still is None:
+        return cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=np.repeat(tpl.mask[..., None], 3, axis=2))
+    core = tpl.core.astype(np.float32)
+    ring = tpl.mask.astype(np.float32) - core
+    d2 = np.square(region - still).sum(axis=-1)
+    obj = cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=np.repeat(core[..., None], 3, axis=2))
+    ring_tpl = cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=np.repeat(ring[..., None], 3, axis=2))
+    unknown = np.isnan(d2)
+    d2[unknown] = 0.0
+    ring_bg = cv2.matchTemplate(d2, ring, cv2.TM_CCORR)
+    bg = cv2.matchTemplate(d2, core, cv2.TM_CCORR)
+    if unknown.any():  # scenery not known there (an object rests there): no comparison with it
+        unknown = unknown.astype(np.float32)
+        ring_bg[cv2.matchTemplate(unknown, ring, cv2.TM_CCORR) > 0.5] = np.inf
+        bg[cv2.matchTemplate(unknown, core, cv2.TM_CCORR) > 0.5] = np.inf
+    return obj + np.minimum(ring_tpl, ring_bg) + np.maximum(obj - bg, 0.0)
+
+
+def _recentre(frame: np.ndarray, scenery: np.ndarray, centre, half, angle: float, margin: float
               ) -> np.ndarray | None:
-    """The centroid of what differs from the median of the frames ``idx`` (a moving object
-    is not in that median where it passes) inside the object's footprint at ``centre`` grown
-    by ``margin`` px in frame ``k``, if that region is about the object's size (0.6 to 1.6
+    """The centroid of what differs from ``scenery`` (the median of a sample of frames: a
+    moving object is not in it where it passes) inside the object's footprint at ``centre``
+    grown by ``margin`` px in ``frame``, if that region is about the object's size (0.6 to 1.6
     times its footprint; else None: the object rests where the median holds it, or a hand
-    covers it). Keeps the rough pass's template from drifting off the object."""
-    box = _box(frames.shape[1:], centre, math.hypot(*half) + margin + 2)
+    covers it) and the scenery is known all over it (not NaN). Keeps the rough pass's template from drifting off the object."""
+    box = _box(frame.shape, centre, math.hypot(*half) + margin + 2)
     if box is None:
         return None
     lo, hi = box
-    crop = frames[k, lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16)
-    still = frame_median(frames[idx, lo[1]:hi[1], lo[0]:hi[0]]).astype(np.int16)
-    d = np.abs(crop - still).max(axis=-1)
-    thr = max(BACKGROUND_MIN + 4, 4.0 * 1.4826 * float(np.median(d)))
-    fg = ((d > thr) & footprint(d.shape, centre, half, angle, grow=margin, offset=lo)).astype(np.uint8)
+    d = np.abs(frame[lo[1]:hi[1], lo[0]:hi[0]] - scenery[lo[1]:hi[1], lo[0]:hi[0]]).max(axis=-1)
+    near = footprint(d.shape, centre, half, angle, grow=margin, offset=lo)
+    if np.isnan(d[near]).any():  # the scenery is not known there (an object rests there)
+        return None
+    thr = max(BACKGROUND_MIN + 4, 4.0 * 1.4826 * float(np.nanmedian(d)))
+    fg = ((d > thr) & near).astype(np.uint8)
     fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, _CROSS)
     area = float(fg.sum())
     if not 0.6 * 4 * half[0] * half[1] <= area <= 1.6 * 4 * (half[0] + 0.5 * margin) * (half[1] + 0.5 * margin):
@@ -790,17 +849,39 @@ def _unchanged(a: np.ndarray, b: np.ndarray, centre, half, angle: float, thr: fl
     return bool((d[fp] > thr).mean() < 0.02) if fp.any() else False
 
 
-def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_frame: int, on_loss: str):
+def _scenery(frames: np.ndarray, start: np.ndarray, halves, angles) -> np.ndarray:
+    """(H, W, 3) float32 static scenery for the rough pass: the median of a sample of frames,
+    NaN over the objects' footprints at their start (grown by a quarter of their size, for a
+    near face in perspective), where an object resting for most of the video is in that
+    median."""
+    scenery = frame_median(frames[_sample(len(frames), BACKGROUND_FRAMES)])
+    n = len(start)
+    grow = np.array([[0.25 * max(h) + 2.0 for h in halves]])
+    covered = _covered(np.asarray(start, float)[None], halves, np.asarray(angles, float).reshape(1, n),
+                       frames.shape[1:3], grow)(0)
+    scenery[covered] = np.nan
+    return scenery
+
+
+def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_frame: int, on_loss: str,
+                scenery: np.ndarray | None = None, tilts=None):
     """Follow the objects frame by frame from ``k0`` in direction ``step`` (+1 or -1).
 
     An object whose footprint did not change since the previous frame rests there. Otherwise
     its look (:class:`_Template`, from frame ``k0``, turned to its direction of motion and
     evolving with it: :data:`EVOLVE`) is matched (:func:`_match`, least squares over the
-    footprint: a plain object is localised by its outline, on any background) around its
-    predicted position (constant velocity), within 4 px plus a frame's motion; where the
-    best match is much worse than the recent ones (an impact that starts or stops it, a turn
-    onto the floor), three times wider and turned by +-:data:`WIDE_TURN`. An object whose
-    footprint would leave the image is followed no further.
+    footprint: a plain object is localised by its outline, on any background; a small one as
+    a composite with ``scenery``) around its predicted position (constant velocity), within
+    4 px plus a frame's motion (:func:`_candidates`); where the best match is worse than the
+    recent ones (a turn onto the floor, an impact), also turned by +-:data:`WIDE_TURN` and
+    onto each of the path's ``tilts`` (ramp, floor), moving along it, and where it is much
+    worse, three times wider. Motion-blurred looks are tried until the camera's shutter is
+    known: the first :data:`SHUTTER_VOTES` fast frames (all objects together) decide whether
+    blurred looks fit better than sharp ones; a sharp camera then matches sharp looks only. An
+    object whose footprint would leave the image is followed no further.
+
+    ``scenery``: (H, W, 3) float32 static scenery (:func:`_scenery`; default computed here).
+    ``tilts``: image tilts (rad) of the path's segments, or None.
 
     Returns:
         (N, n, 2) pixels (NaN where not followed), (N, n) RMS difference of each match (grey
@@ -826,7 +907,9 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
     templates = [_template(frames[k0], start[i], halves[i], angle[i]) for i in range(n)]
     turned = list(templates)
     recent_rms = [[] for _ in range(n)]
-    idx = _sample(N, BACKGROUND_FRAMES)
+    if scenery is None:
+        scenery = _scenery(frames, start, halves, angles0)
+    shutter, votes, probing = None, [0, 0], {}
     ks = range(k0 + step, N) if step > 0 else range(k0 - 1, -1, -1)
     prev = k0
     for k in ks:
@@ -846,8 +929,9 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
                 continue
             # near another object an impact may change its speed at once: its blur is not known
             near = _touching(i, px[prev, i], {}, px[prev], halves, gap=4.0 + float(np.linalg.norm(vel[i])))
+            probing[i] = not near and shutter is None and float(np.linalg.norm(vel[i])) >= PROBE_SPEED
             options[i] = _candidates(frames[k], turned[i], pred, vel[i], halves[i], recent_rms[i][-10:],
-                                     blurred=not near)
+                                     blurred=not near, scenery=scenery, tilts=tilts, shutter=shutter)
         # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
         chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
                          halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))})
@@ -873,10 +957,14 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
                                             "camera.start_pixels", object_index=i)
                 continue
             misses[i] = 0
-            centre, r, tpl, _ = chosen[i]
+            centre, r, tpl, _, was_blurred = chosen[i]
+            if probing[i] and not touching:  # the camera's shutter, learnt from the first fast frames
+                votes[int(was_blurred)] += 1
+                if sum(votes) >= SHUTTER_VOTES:
+                    shutter = "blur" if votes[1] > votes[0] else "sharp"
             speed = float(np.linalg.norm(vel[i]))
             if not touching:
-                at = _recentre(frames, idx, k, centre, halves[i], tpl.angle, 2.0 + 0.5 * speed)
+                at = _recentre(frames[k], scenery, centre, halves[i], tpl.angle, 2.0 + 0.5 * speed)
                 if at is not None and np.linalg.norm(at - centre) < 0.5 * min(halves[i]):
                     centre, verified[k, i] = at, True
             new_vel = centre - px[prev, i]
@@ -927,16 +1015,19 @@ def _blurred(tpl: _Template, length: float, direction: float) -> _Template:
     cv2.line(line, tuple(map(int, p0)), tuple(map(int, p1)), 1.0, thickness=1, lineType=cv2.LINE_AA, shift=4)
     line /= line.sum()
     img = cv2.filter2D(img, -1, line, borderType=cv2.BORDER_REPLICATE)
+    core = cv2.copyMakeBorder(tpl.core, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
     mask = cv2.dilate(mask, (line > 0).astype(np.uint8))
-    return _Template(img, mask, tpl.centre + pad, tpl.angle)
+    core = cv2.dilate(core, (line > 0).astype(np.uint8))
+    return _Template(img, mask, tpl.centre + pad, tpl.angle, core)
 
 
-def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: bool = True) -> list:
+def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: bool = True,
+                scenery: np.ndarray | None = None, tilts=None, shutter: str | None = None) -> list:
     """Candidate positions of one object in a frame for :func:`_rough_pass`: (centre, RMS,
     template, cost) tuples. Searched within 4 px plus a frame's motion of the prediction
-    (twice the object's size while its speed is not known yet); where the best is much worse
-    than the recent matches (a turn onto the floor, an impact), also with the template turned
-    by +-:data:`WIDE_TURN` and three times wider. With ``blurred`` (not near another object),
+    (twice the object's size while its speed is not known yet); where the best is worse than
+    the recent matches' median (a turn onto the floor, an impact), also with the template
+    turned by +-:data:`WIDE_TURN`, and where it is much worse, three times wider. With ``blurred`` (not near another object),
     an object moving at least :data:`BLUR_SPEED` px per frame whose look fits worse than it
     did is also matched motion-blurred (:func:`_blurred`, over each of :data:`SHUTTERS` of a
     frame's motion; the shutter is unknown): a sharp look matched to a long streak slides
@@ -951,27 +1042,39 @@ def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: b
         direction = math.atan2(vel[1], vel[0])
         return [_blurred(t, f * speed, direction) for f in SHUTTERS]
 
-    def matches(t, radius, looks):  # the look t matched as each of ``looks`` (t or t blurred)
-        return [(c, r, t) for v in looks for c, r in _match(frame, v, pred, radius)]
+    def matches(t, radius, looks, at=pred):  # the look t matched as each of ``looks`` (t or t blurred)
+        return [(c, r, t, v is not t) for v in looks for c, r in _match(frame, v, at, radius, scenery=scenery)]
 
     def best(options):
         return min((o[1] for o in options), default=np.inf)
 
     out = matches(tpl, local, [tpl])
-    # the sharp look fits worse than it did: also try it blurred
-    blur = blurred and speed >= BLUR_SPEED and best(out) > 1.1 * typical + 2.0
+    # the sharp look fits worse than it did (or the shutter is still being learnt at speed):
+    # also try it blurred
+    blur = blurred and shutter != "sharp" and speed >= BLUR_SPEED and \
+        (best(out) > 1.1 * typical + 2.0 or (shutter is None and speed >= PROBE_SPEED))
     if blur:
         out += matches(tpl, local, blurred_looks(tpl))
-    if best(out) > 1.5 * typical + 3.0:
-        for a, radius in ((-WIDE_TURN, local), (WIDE_TURN, local), (0.0, 3 * local + max(half))):
-            t = tpl if a == 0.0 else _turned(tpl, tpl.angle + a)
-            out += matches(t, radius, [t] + (blurred_looks(t) if blur else []))
+    if best(out) > typical:  # a turn (onto the floor, an impact)
+        for a in (-WIDE_TURN, WIDE_TURN):
+            t = _turned(tpl, tpl.angle + a)
+            out += matches(t, local, [t] + (blurred_looks(t) if blur else []))
+        for tilt in tilts if tilts is not None and speed > 0 else ():  # onto another segment of the path
+            a = (tilt - tpl.angle + math.pi / 2) % math.pi - math.pi / 2  # the turn, within +-90 degrees
+            if abs(a) < math.radians(3.0):
+                continue
+            t = _turned(tpl, tpl.angle + a)
+            c, s_ = math.cos(a), math.sin(a)
+            along = np.array([c * vel[0] - s_ * vel[1], s_ * vel[0] + c * vel[1]])  # the velocity turned with it
+            out += matches(t, local, [t], at=np.asarray(pred, float) - vel + along)
+    if best(out) > 1.5 * typical + 3.0:  # an impact that starts or stops it: further
+        out += matches(tpl, 3 * local + max(half), [tpl] + (blurred_looks(tpl) if blur else []))
 
     def cost(c, r):
         far = (float(np.linalg.norm(c - pred)) / local) ** 2
         return r + (typical if np.isfinite(typical) else r) * far
 
-    return sorted(((c, r, t, cost(c, r)) for c, r, t in out), key=lambda o: o[3])[:8]
+    return sorted(((c, r, t, cost(c, r), b) for c, r, t, b in out), key=lambda o: o[3])[:8]
 
 
 def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) -> dict:
@@ -1142,7 +1245,7 @@ def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, an
 
 def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame: int = 0, fps: float | None = None,
                 quality_min: float = 0.5, on_loss: str = "raise", first_frame: int = 0,
-                measure_frames=None) -> MatteTracks:
+                measure_frames=None, path_tilts=None) -> MatteTracks:
     """Follow objects without texture by their colour matte (module docstring).
 
     Three passes: (1) a rough track from ``start_frame`` forwards and backwards, matching each
@@ -1164,6 +1267,10 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
         first_frame: video frame number of ``frames[0]`` (for error messages).
         measure_frames: frames to measure in passes (2) and (3) (default all; the others keep
             the rough track, quality 0): a caller that needs only a few saves the time.
+        path_tilts: optional image tilts (rad) of the straight segments of the objects' path
+            (ramp and floor, :func:`~galileo_jax.observe.tracks.path_tilts`): where a match
+            gets worse, the rough pass also tries each object turned onto each of them,
+            moving along it.
 
     Returns:
         :class:`MatteTracks`.
@@ -1177,8 +1284,11 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     shape = frames.shape[1:3]
     halves = [np.asarray(h, float) for h in halves]
     angles0 = np.asarray(angles, float).reshape(n)
-    fwd, r_f, b_f, lost_f = _rough_pass(frames, start, halves, angles0, start_frame, +1, fps, first_frame, on_loss)
-    bwd, r_b, b_b, _ = _rough_pass(frames, start, halves, angles0, start_frame, -1, fps, first_frame, "hold")
+    scenery = _scenery(frames, start, halves, angles0)
+    fwd, r_f, b_f, lost_f = _rough_pass(frames, start, halves, angles0, start_frame, +1, fps, first_frame, on_loss,
+                                        scenery, path_tilts)
+    bwd, r_b, b_b, _ = _rough_pass(frames, start, halves, angles0, start_frame, -1, fps, first_frame, "hold",
+                                   scenery, path_tilts)
     rough, rough_rms, rough_ok = fwd.copy(), r_f.copy(), b_f.copy()
     rough[:start_frame], rough_rms[:start_frame], rough_ok[:start_frame] = bwd[:start_frame], r_b[:start_frame], \
         b_b[:start_frame]

@@ -32,7 +32,7 @@ from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import footprint, track_matte
 from galileo_jax.observe.outline import track_circles
 from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, object_windows,
-                                        path_direction, polygon_mask, window_corners)
+                                        path_direction, path_tilts, polygon_mask, window_corners)
 from galileo_jax.scene import Scene
 
 #: Frames in which a KLT track and the colour track of the same object disagree by more than
@@ -152,7 +152,8 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     wins = object_windows(scene, calib)
     methods = [tracker_of(scene, i) for i in range(n)]
     k_colour, px_colour = (start_frame, start) if colour_start is None else (colour_start[0], colour_start[1])
-    colour = _colour_tracks(frames, np.asarray(px_colour, float).reshape(-1, 2), wins, methods, int(k_colour), fps)
+    colour = _colour_tracks(frames, np.asarray(px_colour, float).reshape(-1, 2), wins, methods, int(k_colour), fps,
+                            path_tilts(scene, calib))
     for i in range(n):
         if methods[i] == "auto":
             k = int(colour[i][4]) if i in colour else -1
@@ -248,12 +249,12 @@ def _tilt(px: np.ndarray, k: int, angle0: float) -> float:
     return float((b - angle0 + np.pi / 2) % np.pi - np.pi / 2 + angle0)
 
 
-def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_frame: int, fps) -> dict:
+def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_frame: int, fps, tilts=None) -> dict:
     """Colour tracks of the objects whose method is "colour" or "auto", followed together
     (each keeps out of the others' footprints): ``{i: (pixels, valid, quality, lost,
     look_frame)}`` (``lost`` >= 0: the frame from which the track was lost). An "auto" object
     whose colour does not stand out is left out (KLT takes it); a "colour" one raises, as does
-    a lost "colour" track.
+    a lost "colour" track. ``tilts``: the path's image tilts (:func:`~galileo_jax.observe.tracks.path_tilts`).
 
     Raises:
         TrackingError: a ``tracker: colour`` object's colour does not stand out from the
@@ -263,7 +264,7 @@ def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_fr
     while group:
         try:
             mt = track_matte(frames, start[group], [wins[i].half for i in group], [wins[i].angle for i in group],
-                             start_frame=start_frame, fps=fps, on_loss="hold")
+                             start_frame=start_frame, fps=fps, on_loss="hold", path_tilts=tilts)
         except TrackingError as err:
             j = err.object_index
             if j is None or methods[group[j]] != "auto":

@@ -236,6 +236,15 @@ def path_direction(scene: Scene, calib: Calibration, i: int) -> np.ndarray:
 
 
 
+def path_tilts(scene: Scene, calib: Calibration) -> tuple[float, float]:
+    """Image tilts (rad, from the u axis, in (-pi, pi]) of the path's two straight segments,
+    the ramp (downhill) and the floor (away from the ramp): an object sliding from one onto
+    the other turns from the first tilt to the second."""
+    th = scene.ramp.angle
+    return tuple(float(math.atan2(d[1], d[0])) for d in (_image_direction(calib, (math.cos(th), -math.sin(th))),
+                                                         _image_direction(calib, (1.0, 0.0))))
+
+
 def object_windows(scene: Scene, calib: Calibration) -> list[Window]:
     """Each object's image footprint at its start (half sizes in px along and across its
     direction of motion), from the scene's sizes and the calibration's scale."""
