@@ -67,7 +67,29 @@ def fit_one(video: Path, config: Path | None = None) -> dict:
                   "covered": bool(lo <= truth[n] <= hi), "interval90": [lo, hi]}
     rec["rmse_over_noise"] = {k: v["ratio"] for k, v in rep.rmse.items() if "ratio" in v}
     rec["tracking"] = rep.observation.tracking.summary()
+    rec["competing_optima"] = rep.diagnostics.get("competing_optima", [])
     return rec
+
+
+def _optima(rec: dict) -> str:
+    """The competing optima of a record (``fit``'s warning): their count and how much lower
+    their log-likelihood is (nats)."""
+    optima = rec.get("competing_optima") or []
+    lower = ", ".join(f"{o['delta_loglik']:.1f}" for o in optima)
+    return f"{len(optima)} ({lower})" if optima else "0"
+
+
+def warning_counts(records: list[dict]) -> str:
+    """One sentence: on how many videos whose 90% intervals missed a truth ``fit`` warned of
+    competing optima, and on how many whose intervals all held it."""
+    ok = [r for r in records if "error" not in r]
+    missed = [r for r in ok if not all(r[n]["covered"] for n in NAMES)]
+    held = [r for r in ok if all(r[n]["covered"] for n in NAMES)]
+    warned = sum(bool(r.get("competing_optima")) for r in missed)
+    false = sum(bool(r.get("competing_optima")) for r in held)
+    return (f"`fit` warned of another optimum within 2 nats of the best (its intervals local to the best) on "
+            f"{warned} of the {len(missed)} videos whose 90% intervals missed a truth, and on {false} of the "
+            f"{len(held)} whose intervals all held it.")
 
 
 def main(argv=None) -> int:
@@ -103,17 +125,18 @@ def main(argv=None) -> int:
         records.append(cached_record(sub / video.name, lambda v: fit_one(v, args.config), args.rerun))
     ok = [r for r in records if "error" not in r]
     rows = ["| video | hand | k1 true / est | k2 true / est | phi true / est | in 90% (k1, k2, phi) | RMSE / noise (max) "
-            "| methods | dropped | time (s) |", "|" + "---|" * 10]
+            "| other optima (log L lower) | methods | dropped | time (s) |", "|" + "---|" * 11]
     for r in records:
         if "error" in r:
-            rows.append(f"| {r['video']} | {'yes' if r['hand'] else 'no'} | failed: {r['error'][:120]} |" + " |" * 7)
+            rows.append(f"| {r['video']} | {'yes' if r['hand'] else 'no'} | failed: {r['error'][:120]} |" + " |" * 8)
             continue
         cov = ", ".join("yes" if r[n]["covered"] else "no" for n in NAMES)
         methods = "/".join(o["method"] for o in r["tracking"]["objects"])
         dropped = "/".join(str(o["dropped"]) for o in r["tracking"]["objects"])
         rows.append(f"| {r['video']} | {'yes' if r['hand'] else 'no'} | "
                     + " | ".join(f"{r['truth'][n]:.3f} / {r[n]['estimate']:.3f}" for n in NAMES)
-                    + f" | {cov} | {max(r['rmse_over_noise'].values()):.1f} | {methods} | {dropped} | {r['wall_s']:.0f} |")
+                    + f" | {cov} | {max(r['rmse_over_noise'].values()):.1f} | {_optima(r)} | {methods} | {dropped} "
+                    f"| {r['wall_s']:.0f} |")
     summary = {n: {"median_error": float(np.median([r[n]["error"] for r in ok])) if ok else None,
                    "coverage": float(np.mean([r[n]["covered"] for r in ok])) if ok else None,
                    "goal": GOAL[n]} for n in NAMES}
@@ -131,7 +154,7 @@ def main(argv=None) -> int:
         s = summary[n]
         if s["median_error"] is not None:
             lines.append(f"| {n} | {s['median_error']:.4f} | {s['goal']} | {s['coverage']:.2f} |")
-    lines += ["", *rows, ""]
+    lines += ["", warning_counts(records), "", *rows, ""]
     (RESULTS / f"{name}.md").write_text("\n".join(lines))
     print("\n".join(lines))
     return 0

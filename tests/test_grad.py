@@ -244,3 +244,30 @@ def test_diverse_best_keeps_a_start_in_each_region_best_first():
     assert np.asarray(diverse_best(u, ll_one, 3)).tolist() == [0, 1, 2]  # no start where rollouts fail
     batched = jax.vmap(diverse_best, in_axes=(None, 0, None))(u, np.stack([ll, ll_fail]), 3)  # as solve_batch
     assert np.asarray(batched).tolist() == [[0, 3, 5], [0, 4, 5]]
+
+
+def test_competing_optima_name_other_end_points_that_fit_about_as_well():
+    """A multi-start fit whose starts end at other optima: an end point within 2 nats of the
+    best and outside its 90% interval is reported (once, however many starts reach it), with
+    the parameters it disagrees on; one 10 nats worse, or one inside the intervals, is not. The
+    console's warning names it."""
+    from types import SimpleNamespace
+
+    from galileo_jax.inference.summary import competing_optima, optima_warning
+
+    best = np.array([0.401, 0.087])  # k1, scale_error: a ridge along which they trade
+    ends = np.array([best, [0.376, -0.086], [0.3761, -0.0859], [0.402, 0.086], [0.300, 0.0]])
+    cost = np.array([23.0, 24.1, 24.15, 23.01, 33.0])  # nats; the second optimum 1.1 lower in log-likelihood
+    result = SimpleNamespace(names=("k1", "scale_error"), starts_theta=ends, starts_cost=cost, cost=23.0)
+    parameters = {"k1": {"interval90": [0.398, 0.404], "sd": 0.0018, "identifiable": True},
+                  "scale_error": {"interval90": [0.060, 0.108], "sd": 0.015, "identifiable": True},
+                  "m1": {"interval90": None, "sd": None, "identifiable": False}}
+    optima = competing_optima(result, None, parameters)
+    assert len(optima) == 1, optima
+    assert optima[0]["theta"]["k1"] == pytest.approx(0.376)
+    assert optima[0]["delta_loglik"] == pytest.approx(1.1)
+    assert optima[0]["outside_interval90"] == ["k1", "scale_error"]
+    warning = optima_warning({"competing_optima": optima})
+    assert "k1 0.376" in warning and "local to the best optimum" in warning
+    assert competing_optima(result, None, parameters, max_delta=1.0) == []
+    assert optima_warning({"competing_optima": []}) is None

@@ -111,6 +111,77 @@ def mixing_warning(parameters: dict) -> str | None:
             "pseudo-randomly to small parameter changes); raise mh.samples or mh.chains, or compare with --method grad")
 
 
+#: Log-likelihood difference (nats) within which another Levenberg-Marquardt end point counts as
+#: a competing optimum: a likelihood-ratio statistic 2 * delta up to 4, about the 95% quantile of
+#: chi^2 with one degree of freedom (3.84), so a test at the 5% level could not tell it from the
+#: best (Wilks 1938).
+COMPETING_DELTA = 2.0
+
+
+def competing_optima(result, space: ParamSpace | None, parameters: dict,
+                     max_delta: float = COMPETING_DELTA) -> list[dict]:
+    """Other optima that fit about as well as the best but lie outside its 90% intervals.
+
+    A Gauss-Newton interval describes the curvature at the best optimum only. Where another
+    start of the multi-start fit ended at a different optimum whose log-likelihood is within
+    ``max_delta`` nats of the best, the local intervals do not describe what the video
+    determines (e.g. a friction coefficient traded against the camera's scale along a ridge).
+
+    Args:
+        result: a :class:`~galileo_jax.inference.grad.GradResult` (its ``starts_theta`` (S, d)
+            end points and ``starts_cost`` (S,), cost = -log-likelihood + const, nats).
+        space: the parameter space (for phi in two-object scenes with free masses); may be
+            None where no phi is reported.
+        parameters: the summary's parameters (``interval90``, ``sd``, ``identifiable``,
+            ``known``), as :func:`point_parameters` returns them.
+        max_delta: log-likelihood difference (nats), default :data:`COMPETING_DELTA`.
+
+    Returns:
+        One dict per distinct competing optimum, best first: ``delta_loglik`` (nats below the
+        best, >= 0), ``theta`` {name: value} of the identifiable fitted parameters, and
+        ``outside_interval90`` (the names whose value lies outside the best's 90% interval).
+        End points within 1.645 SD (the best's) of an optimum already listed are the same one.
+    """
+    theta = np.asarray(result.starts_theta, np.float64)
+    cost = np.asarray(result.starts_cost, np.float64)
+    values = {n: theta[:, j] for j, n in enumerate(result.names)}
+    if "phi" in parameters and "phi" not in values and space is not None:
+        phi = phi_of(space, jnp.asarray(theta))
+        if phi is not None:
+            values["phi"] = np.asarray(phi, np.float64)
+    checked = [n for n, p in parameters.items() if n in values and p.get("identifiable", True)
+               and not p.get("known") and p.get("interval90") is not None]
+    out: list[dict] = []
+    for s in np.argsort(cost):
+        delta = float(cost[s] - result.cost)
+        if not np.isfinite(delta) or delta > max_delta:
+            continue
+        outside = [n for n in checked
+                   if not parameters[n]["interval90"][0] <= values[n][s] <= parameters[n]["interval90"][1]]
+        if not outside:
+            continue
+        here = {n: float(values[n][s]) for n in checked}
+        if any(all(abs(here[n] - o["theta"][n]) <= 1.645 * max(parameters[n]["sd"], 1e-12) for n in checked)
+               for o in out):
+            continue
+        out.append({"delta_loglik": max(delta, 0.0), "theta": here, "outside_interval90": outside})
+    return out
+
+
+def optima_warning(diagnostics: dict) -> str | None:
+    """One line naming the competing optima of a grad fit (:func:`competing_optima`), what they
+    mean and what to do; None when there are none."""
+    optima = diagnostics.get("competing_optima") or []
+    if not optima:
+        return None
+    shown = "; ".join(", ".join(f"{n} {o['theta'][n]:.3f}" for n in o["outside_interval90"])
+                      + f" (log-likelihood {o['delta_loglik']:.1f} lower)" for o in optima[:3])
+    return (f"warning: {len(optima)} other optimum{'s' if len(optima) > 1 else ''} fit almost as well ({shown}): "
+            "the 90% intervals above are local to the best optimum and do not cover "
+            f"{'them' if len(optima) > 1 else 'it'}. The video may not determine these parameters (read them "
+            "together), or the search missed a better optimum: compare with more --starts or --method mh")
+
+
 def _known(value: float, **kw) -> dict:
     return _entry(mean=value, median=value, sd=0.0, interval90=[value, value], best=value, known=True, **kw)
 
@@ -253,13 +324,15 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     mean = median = best = the estimate; sd from the delta method; interval90 from the
     Gauss-Newton normal approximation in z mapped through the transform. A derived phi (one
     mass known) gets its SD by the delta method and interval estimate +- 1.645 sd. R-hat and
-    ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s.
+    ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s,
+    and ``competing_optima`` (:func:`competing_optima`).
     """
     params = point_parameters(space, result.theta, result.sd, result.interval90, result.cov_theta,
                               getattr(result, "fixed", ()))
     diagnostics = {"cost": float(result.cost), "loglik": float(result.loglik), "iterations": int(result.iterations),
                    "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
-                   "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s)}
+                   "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s),
+                   "competing_optima": competing_optima(result, space, params)}
     return {"method": "grad", "parameters": params, "diagnostics": diagnostics}
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from galileo_jax.inference.summary import mixing_warning
+from galileo_jax.inference.summary import mixing_warning, optima_warning
 from galileo_jax.pipeline import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
@@ -36,6 +36,11 @@ def _parameter_lines(parameters: dict) -> list[str]:
     return lines + ([f"  {warning}"] if warning else [])
 
 
+def _optima_lines(diagnostics: dict) -> list[str]:
+    warning = optima_warning(diagnostics)
+    return [f"  {warning}"] if warning else []
+
+
 def _rmse_lines(rmse: dict, indent: str = "    ") -> list[str]:
     return [f"{indent}{name:<12} RMSE {r['rmse']:.3f}   noise {r['noise_sd']:.3f}   ratio {r['ratio']:.1f}"
             for name, r in rmse.items() if name != "all"]
@@ -48,7 +53,7 @@ def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str
     for j, (v, s, o) in enumerate(zip(fit.videos, fit.scenes, fit.observations)):
         lines.append(f"  video {j + 1}: {v.name} (scene {s.name}, {len(o.frame_times)} frames at {o.fps:.2f} fps)")
     lines.append("")
-    lines += _parameter_lines(fit.parameters)
+    lines += _parameter_lines(fit.parameters) + _optima_lines(fit.diagnostics)
     lines += ["", "  " + identifiability_statement(fit.scenes[0]), ""]
     lines.append("  fit quality per video (RMSE of observed - simulated velocity, m/s; log-likelihood):")
     for j, (r, ll) in enumerate(zip(fit.rmse, fit.video_loglik)):
@@ -96,7 +101,7 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
         f"{obs.fps:.2f} fps, method {fit.method})",
         "",
     ]
-    lines += _parameter_lines(fit.parameters)
+    lines += _parameter_lines(fit.parameters) + _optima_lines(fit.diagnostics)
     lines += ["", "  " + identifiability_statement(fit.scene), ""]
     lines.append("  fit quality (RMSE of observed - simulated velocity, m/s; noise = tracking noise SD):")
     lines += _rmse_lines(fit.rmse)
