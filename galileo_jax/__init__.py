@@ -13,6 +13,10 @@ absolute mass scale is fixed only by a known mass in the scene file.
 
 import os as _os
 
+# MuJoCo picks its OpenGL backend when it is imported: EGL renders offscreen on a machine without
+# a display (with Mesa, also without a GPU). The one place this is set; a user's choice stands.
+_os.environ.setdefault("MUJOCO_GL", "egl")
+
 # FFmpeg (inside OpenCV) logs container errors itself; we report them as one-line errors.
 _os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 _os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")

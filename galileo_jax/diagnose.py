@@ -26,14 +26,11 @@ exit status.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 from galileo_jax.cli import OneLineParser, videos_and_scenes  # noqa: E402
 from galileo_jax.errors import GalileoError, cli_entry  # noqa: E402

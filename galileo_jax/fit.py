@@ -17,12 +17,9 @@ user mistake ends in one line on stderr and a non-zero exit status (see :mod:`ga
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 from galileo_jax.cli import OneLineParser, videos_and_scenes  # noqa: E402
 from galileo_jax.errors import GalileoError, cli_entry  # noqa: E402

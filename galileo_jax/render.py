@@ -27,9 +27,6 @@ same as :func:`galileo_jax.model.build_model`'s.
 from __future__ import annotations
 
 import math
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 from typing import NamedTuple  # noqa: E402
 

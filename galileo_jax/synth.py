@@ -27,7 +27,7 @@ Masses and frictions are set as :func:`galileo_jax.simulate.apply_params` sets t
 ``body_mass``, ``body_inertia`` scaled with the mass, ``pair_friction[:, 0:2]`` of each
 object's pairs with the ramp and floor, then ``mj_setConst`` recomputes ``invweight0``.
 
-Rendering needs an OpenGL context: ``MUJOCO_GL=egl`` (set by default here) with Mesa's
+Rendering needs an OpenGL context: ``MUJOCO_GL=egl`` (set by default on importing galileo_jax) with Mesa's
 software EGL works without a GPU; on Debian/Ubuntu install
 ``libegl1 libegl-mesa0 libopengl0 libgl1-mesa-dri``.
 
@@ -99,8 +99,6 @@ import json
 import math
 import os
 import sys
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 try:  # MuJoCo loads its OpenGL backend (MUJOCO_GL) on import: a missing libEGL fails here.
     import mujoco

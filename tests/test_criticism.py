@@ -91,7 +91,6 @@ def test_pure_noise_is_called_noise(noise_runs):
     for s, flag in zip(noise_runs, structured):
         assert ("look like noise" in s["verdict"]) == (not flag)
         assert flag == any(r["structured"] for r in s["table"])
-    assert "look like noise" in noise_runs[0]["verdict"] or structured[0]
 
 
 def test_each_test_is_calibrated_under_the_noise_model(noise_runs):

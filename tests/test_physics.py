@@ -100,7 +100,9 @@ def test_mass_scale_does_not_change_profile(two_object):
     poses = np.asarray(fn(PhysParams(m, k)))
     same = np.abs(poses[0, :, :, :2] - poses[1, :, :, :2]).max()
     different = np.abs(poses[0, :, 1, :2] - poses[2, :, 1, :2]).max()
-    assert same < 2e-3, same  # equal phi: same motion (float32 rounding only)
+    # equal phi: the same motion up to float64 rounding (measured 2.2e-8 m; float32 rollouts
+    # break the invariance by millimetres, the reason the simulator runs in float64)
+    assert same < 1e-6, same
     assert different > 2e-2, different  # different phi: object 2 moves differently
 
 
