@@ -686,3 +686,18 @@ def test_objects_out_of_their_order_are_not_measured():
                        [[52.0, 30.0], [52.0, 30.0]]])  # one on the other
     ok = _in_order(pixels, start)
     assert ok[:2].all() and not ok[2:].any()
+
+
+@pytest.mark.parametrize("direction", ["right", "left"])
+def test_path_tilts_are_the_ramps_and_the_floors_image_directions(direction):
+    """The rough pass's turn candidates: a 20 degree ramp going down to the right is tilted 20
+    degrees in the image (v grows downwards) and the floor 0; going down to the left, 160 and
+    180 degrees (the directions of motion, away from the ramp's top)."""
+    from galileo_jax.calibration import calibration
+    from galileo_jax.observe.tracks import path_tilts
+
+    scene = _scene(ramp_direction=direction)
+    ramp, floor = np.degrees(path_tilts(scene, calibration(scene.camera)))
+    want = (20.0, 0.0) if direction == "right" else (160.0, 180.0)
+    assert abs((ramp - want[0] + 180) % 360 - 180) < 1e-6 and abs((floor - want[1] + 180) % 360 - 180) < 1e-6, \
+        (ramp, floor)
