@@ -82,6 +82,7 @@ def test_unknown_option_and_method(tmp_path):
                           "--engine mjx")
 
 
+@pytest.mark.slow
 def test_seed_method_on_the_example(tmp_path):
     """The seed's coin-toss sampler through the CLI (16 x 75 proposals on the C engine): it gets
     k1 (the seed's NOTES: 'k1 is precise') and reports the engine."""
@@ -103,6 +104,7 @@ def test_seed_method_on_the_example(tmp_path):
     assert not (tmp_path / "fit" / "posterior.nc").exists()  # the seed's sampler keeps no chains
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["mh", "grad"])
 def test_posterior_netcdf_reproduces_the_summaries(tmp_path, method):
     """posterior.nc opens with az.from_netcdf: mh's chains (chain x draw, with lp and the total
@@ -229,6 +231,7 @@ def test_effects_and_diagnose_bad_input(tmp_path):
         assert name in listing.stdout
 
 
+@pytest.mark.slow
 def test_several_videos_bad_input(tmp_path):
     """Joint fits: scene files that do not pair with the videos, per-video options that do not
     apply, and per-video names that are no parameter are one-line errors."""

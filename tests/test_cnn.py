@@ -72,6 +72,7 @@ def test_network_input_aligns_the_release_and_masks_what_the_video_lacks():
         cnn.network_input(spec, obs._replace(fps=60.0))
 
 
+@pytest.mark.slow
 def test_training_step_is_one_jitted_function_and_training_resumes(tmp_path):
     """One jitted step draws parameters, simulates (MJX), adds noise and updates the network; a
     second call does not retrace; training stops and resumes from its Orbax checkpoint; the

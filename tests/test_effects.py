@@ -222,6 +222,7 @@ CUBIC = Effect(
     evidence="the top speed", force=_cubic_drag)
 
 
+@pytest.mark.slow
 def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
     from galileo_jax.diagnose import write_outputs
     from galileo_jax.diagnosis import DiagnoseSettings, base_loglik_by_engine, diagnose
@@ -327,6 +328,7 @@ def test_adequacy_check_leaves_out_contact_events_but_not_what_follows_them():
     assert calm_rmse(late, [obs], calm_masks(late, [obs]))[0] > 0.008
 
 
+@pytest.mark.slow
 def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     """``Effect.search_restarts``: restitution's refits run several CMA-ES searches, alternating
     between LM's end and a global screen's fit, and keep the best point of all; an effect
@@ -429,6 +431,7 @@ def test_alternatives_are_refitted_from_an_improved_null():
     assert fits[0].summary["parameters"][effect.params[0].name]["best"] < 0.5  # no drag was simulated
 
 
+@pytest.mark.slow
 def test_diagnose_fits_a_scale_error_before_blaming_physics():
     """A video whose scale is 2.5% off (every displacement stretched about the start) and no
     hidden effect: with the default calibration nuisance (the scene states no scale tolerance)
@@ -493,6 +496,7 @@ def test_a_ramp_friction_is_mimicked_by_its_equivalent_ramp_angle_error():
     assert angle_alternative(SimpleNamespace(summary={"parameters": {"k1": {"best": k}}}), stated, 1.0) is None
 
 
+@pytest.mark.slow
 def test_a_stuck_base_fit_is_fitted_again_before_effects_are_screened(monkeypatch):
     """``base_retry``: a base fit that misfits (here forced: one random start, one LM step) is
     fitted once more from twice the starts before any effect is screened, so a clean video gets

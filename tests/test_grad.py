@@ -56,6 +56,7 @@ def test_fd_jacobian_matches_central_differences_of_rollout(problem):
     assert np.allclose(jac, manual, rtol=1e-3, atol=1e-2 * np.abs(manual).max())
 
 
+@pytest.mark.slow
 def test_grad_recovers_truth(problem):
     res = fit_grad(problem, jax.random.key(0), n_starts=3, n_screen=32, max_steps=30)
     est = dict(zip(res.names, res.theta))
@@ -130,6 +131,7 @@ def test_grad_runs_more_starts_than_a_chunk_in_chunks(problem, monkeypatch):
         grad.solve_starts(solver, jnp.zeros((3, 3)), c_problem.data, chunk=0)
 
 
+@pytest.mark.slow
 def test_grad_with_held_parameters(problem):
     """fit_grad(fixed=...) fits only the free coordinates and reports the held one exactly."""
     res = fit_grad(problem, jax.random.key(1), n_starts=2, n_screen=16, max_steps=30, fixed={"phi": TRUTH["phi"]})
@@ -193,6 +195,7 @@ def test_gauss_newton_covariance_gives_a_blown_up_coordinate_no_made_up_interval
     np.testing.assert_allclose(full, np.linalg.inv(jac.T @ jac), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_cma_search_climbs_from_a_far_start_and_keeps_held_parameters(problem):
     """CMA-ES (pycma, batched likelihood calls) from a start far from the truth ends near it, with
     a log-likelihood no lower than the start's; a held parameter stays exactly at its value."""

@@ -65,6 +65,7 @@ def joint_fit(joint):
     return fit_grad(joint, jax.random.key(0), n_starts=1, n_screen=8, max_steps=10)
 
 
+@pytest.mark.slow
 def test_joint_fit_recovers_shared_friction(joint, joint_fit):
     res = joint_fit
     assert res.names == ("k1",) and joint.names == ("k1",)
@@ -128,6 +129,7 @@ def test_per_video_parameters_get_one_copy_per_video(problems):
         JointProblem([])
 
 
+@pytest.mark.slow
 def test_rolling_joint_fit_finds_mu_and_beats_sliding():
     """Truth: a solid cylinder (I = m r^2 / 2) that rolls without slipping at 20 deg and rolls
     and slips at 45 deg (tan 45 = 1 > mu (1 + 1/alpha) = 0.9), one mu = 0.3. Only the 45 deg

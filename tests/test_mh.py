@@ -216,6 +216,7 @@ def test_seed_sampler_rules():
 
 
 # ---------------------------------------------------------------------------- a simulated video
+@pytest.mark.slow
 def test_mh_interval_covers_truth_on_simulated_video():
     from galileo_jax.inference.problem import Problem, simulated_observation
 

@@ -65,6 +65,7 @@ def _problem(scene, obs) -> Problem:
                    engine=resolve_engine(CFG))  # the engine fit runs on: C MuJoCo on a CPU
 
 
+@pytest.mark.slow
 def test_grad_recovers_parameters_from_rendered_video(rendered):
     errors = []
     for i, (scene, obs, truth) in enumerate(rendered):

@@ -178,6 +178,7 @@ def dataset(tmp_path_factory) -> tuple[Path, Path]:
     return ds, mapped
 
 
+@pytest.mark.slow
 def test_sweep_through_submitit_local_and_gather(dataset, tmp_path):
     ds, mapped = dataset
     out = tmp_path / "sweep"
@@ -236,6 +237,7 @@ def dataset3(dataset, tmp_path_factory) -> tuple[Path, Path]:
     return ds, mapped
 
 
+@pytest.mark.slow
 def test_batched_sweep_matches_one_job_per_video(dataset3, tmp_path):
     """batch=true,false in one sweep: the batched grad jobs (one per scene file) give every video
     the row its own job gives, same estimates and intervals; the broken video fails alone, with
