@@ -1412,8 +1412,13 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
         best = None
         if rounds and rounds[0]["refits"]:
             best = min(rounds[0]["refits"], key=lambda x: x["p_value"])
+        passed = best is not None and best["p_value"] <= threshold
         why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} vs threshold {threshold:.2g}, "
                f"RMSE drop {100 * best['rmse_drop']:.0f}%)") if best else ""
+        if passed:  # a significant but small gain: chance is not what rules it out
+            why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} passes its test (threshold "
+                   f"{threshold:.2g}) but lowers the RMSE by only {100 * best['rmse_drop']:.0f}%, under the "
+                   f"{100 * min_rmse_drop:.0f}% that counts)")
         ratio = base.rmse / floor if floor > 0 else float("nan")
         # the model misfits (beyond the adequacy bound, with residuals its criticism finds
         # structured), and no candidate says why: say both. Residuals that look like noise at a
@@ -1426,9 +1431,11 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
                        "describes is missing (or a calibration error beyond its tolerance): see where the residuals "
                        "sit (residuals_base.png).")
         else:
-            noise = (f"; the residuals look like noise at {ratio:.1f}x the noise floor"
-                     if ratio > adequate_ratio else "")
-            message = "No missing effect: no candidate improves the fit beyond chance" + why + noise + "."
+            noise = (f"; the residuals look like noise at {ratio:.1f}x the noise floor (no structure the residual "
+                     "tests find: the simulator's own variability at contact events, or a difference spread over "
+                     "the whole video that none of the candidates describes)" if ratio > adequate_ratio else "")
+            message = ("No missing effect: no candidate improves the fit "
+                       + ("by enough to count" if passed else "beyond chance") + why + noise + ".")
     else:
         message = (f"Missing effect: {' then '.join(added)}. RMSE {base.rmse:.3f} -> {final.rmse:.3f} m/s "
                    f"({base.rmse / max(final.rmse, 1e-12):.1f}x lower; noise floor {floor:.3f} m/s).")

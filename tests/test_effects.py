@@ -552,6 +552,11 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     d = _decision(noisy, rounds, [], 0, 0.004, 0.008, 1.3)
     assert not d["unexplained_misfit"] and d["message"].startswith("No missing effect")
     assert "look like noise at 2.0x the noise floor" in d["message"]
+    # the candidate passed its test (p 1e-35): what rules it out is its small gain, not chance
+    assert "by enough to count" in d["message"] and "beyond chance" not in d["message"], d["message"]
+    assert "under the 10% that counts" in d["message"], d["message"]
+    rounds_chance = [{"refits": [{"effect": "quadratic_drag", "p_value": 0.2, "rmse_drop": 0.01}], "adequate": False}]
+    assert "beyond chance" in _decision(noisy, rounds_chance, [], 0, 0.004, 0.008, 1.3)["message"]
 
 
 def test_no_refit_when_nothing_points_at_an_effect():
