@@ -1413,12 +1413,15 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
         if rounds and rounds[0]["refits"]:
             best = min(rounds[0]["refits"], key=lambda x: x["p_value"])
         passed = best is not None and best["p_value"] <= threshold
-        why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} vs threshold {threshold:.2g}, "
-               f"RMSE drop {100 * best['rmse_drop']:.0f}%)") if best else ""
         if passed:  # a significant but small gain: chance is not what rules it out
             why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} passes its test (threshold "
                    f"{threshold:.2g}) but lowers the RMSE by only {100 * best['rmse_drop']:.0f}%, under the "
                    f"{100 * min_rmse_drop:.0f}% that counts)")
+        elif best is not None:
+            why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} vs threshold {threshold:.2g}, "
+                   f"RMSE drop {100 * best['rmse_drop']:.0f}%)")
+        else:
+            why = ""
         ratio = base.rmse / floor if floor > 0 else float("nan")
         # the model misfits (beyond the adequacy bound, with residuals its criticism finds
         # structured), and no candidate says why: say both. Residuals that look like noise at a

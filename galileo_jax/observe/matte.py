@@ -198,9 +198,10 @@ def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAM
         n: frames sampled, evenly over the video.
         region: optional ``(lo, hi)`` corners (u, v) in px of the rectangle to compute (the
             objects' paths); outside it the background is left 0.
-        median: optional (h, w, 3) float32 plain median of the sampled frames over ``region``
+        median: optional float32 plain median of the sampled frames, (h, w, 3) over ``region``
             (:attr:`ColourBackground.median` of an earlier call with the same frames, ``n``
-            and ``region``), reused instead of computed again.
+            and ``region``) or (H, W, 3) over the whole frame (cropped here), reused instead
+            of computed again.
 
     Returns:
         :class:`ColourBackground`; pixels covered in every sampled frame are taken from the
@@ -214,6 +215,8 @@ def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAM
     idx = _sample(len(frames), n)
     if median is None:
         median = frame_median(part[idx])
+    elif median.shape[:2] == (H, W):
+        median = median[y0:y1, x0:x1]
     inner = median.copy()
     if cut is not None:
         masks = np.stack([cut(k) for k in idx])  # (n, h, w)
@@ -754,10 +757,9 @@ def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: 
     scenery where it now is (an object moving onto other scenery keeps its outline), plus a
     penalty where the scenery alone explains the object's pixels better than the template does
     (the core's sum of squares against the template minus that against the scenery, where
-    positive): a stretch of scenery
-    that resembles the object is no match, however well its colour fits (for a Gaussian pixel
-    noise the log-likelihood ratio of "object here" against "scenery here" is the difference
-    of those two sums of squares).
+    positive): a stretch of scenery that resembles the object is no match, however well its
+    colour fits (for a Gaussian pixel noise the log-likelihood ratio of "object here" against
+    "scenery here" is the difference of those two sums of squares).
 
     The composite costs about 2.5 times the plain fit; it is used for objects whose footprint
     is under :data:`COMPOSITE_AREA` px, where the ring is a large part of the template (a third
@@ -818,7 +820,8 @@ def _recentre(frame: np.ndarray, scenery: np.ndarray, centre, half, angle: float
     moving object is not in it where it passes) inside the object's footprint at ``centre``
     grown by ``margin`` px in ``frame``, if that region is about the object's size (0.6 to 1.6
     times its footprint; else None: the object rests where the median holds it, or a hand
-    covers it) and the scenery is known all over it (not NaN). Keeps the rough pass's template from drifting off the object."""
+    covers it) and the scenery is known all over it (not NaN). Keeps the rough pass's template
+    from drifting off the object."""
     box = _box(frame.shape, centre, math.hypot(*half) + margin + 2)
     if box is None:
         return None
@@ -849,16 +852,16 @@ def _unchanged(a: np.ndarray, b: np.ndarray, centre, half, angle: float, thr: fl
     return bool((d[fp] > thr).mean() < 0.02) if fp.any() else False
 
 
-def _scenery(frames: np.ndarray, start: np.ndarray, halves, angles) -> np.ndarray:
-    """(H, W, 3) float32 static scenery for the rough pass: the median of a sample of frames,
-    NaN over the objects' footprints at their start (grown by a quarter of their size, for a
-    near face in perspective), where an object resting for most of the video is in that
-    median."""
-    scenery = frame_median(frames[_sample(len(frames), BACKGROUND_FRAMES)])
+def _scenery(median: np.ndarray, start: np.ndarray, halves, angles) -> np.ndarray:
+    """(H, W, 3) float32 static scenery for the rough pass: ``median`` (H, W, 3), the plain
+    median of a sample of frames, with NaN over the objects' footprints at their start (grown
+    by a quarter of their size, for a near face in perspective), where an object resting for
+    most of the video is in that median."""
+    scenery = median.copy()
     n = len(start)
     grow = np.array([[0.25 * max(h) + 2.0 for h in halves]])
     covered = _covered(np.asarray(start, float)[None], halves, np.asarray(angles, float).reshape(1, n),
-                       frames.shape[1:3], grow)(0)
+                       median.shape[:2], grow)(0)
     scenery[covered] = np.nan
     return scenery
 
@@ -880,7 +883,8 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
     blurred looks fit better than sharp ones; a sharp camera then matches sharp looks only. An
     object whose footprint would leave the image is followed no further.
 
-    ``scenery``: (H, W, 3) float32 static scenery (:func:`_scenery`; default computed here).
+    ``scenery``: (H, W, 3) float32 static scenery (:func:`_scenery`; default computed here
+    from :data:`BACKGROUND_FRAMES` frames).
     ``tilts``: image tilts (rad) of the path's segments, or None.
 
     Returns:
@@ -908,7 +912,7 @@ def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_f
     turned = list(templates)
     recent_rms = [[] for _ in range(n)]
     if scenery is None:
-        scenery = _scenery(frames, start, halves, angles0)
+        scenery = _scenery(frame_median(frames[_sample(N, BACKGROUND_FRAMES)]), start, halves, angles0)
     shutter, votes, probing = None, [0, 0], {}
     ks = range(k0 + step, N) if step > 0 else range(k0 - 1, -1, -1)
     prev = k0
@@ -1024,13 +1028,15 @@ def _blurred(tpl: _Template, length: float, direction: float) -> _Template:
 def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: bool = True,
                 scenery: np.ndarray | None = None, tilts=None, shutter: str | None = None) -> list:
     """Candidate positions of one object in a frame for :func:`_rough_pass`: (centre, RMS,
-    template, cost) tuples. Searched within 4 px plus a frame's motion of the prediction
-    (twice the object's size while its speed is not known yet); where the best is worse than
-    the recent matches' median (a turn onto the floor, an impact), also with the template
-    turned by +-:data:`WIDE_TURN`, and where it is much worse, three times wider. With ``blurred`` (not near another object),
-    an object moving at least :data:`BLUR_SPEED` px per frame whose look fits worse than it
-    did is also matched motion-blurred (:func:`_blurred`, over each of :data:`SHUTTERS` of a
-    frame's motion; the shutter is unknown): a sharp look matched to a long streak slides
+    template, cost, matched blurred) tuples. Searched within 4 px plus a frame's motion of the
+    prediction (twice the object's size while its speed is not known yet); where the best is
+    worse than the recent matches' median (a turn onto the floor, an impact), also with the
+    template turned by +-:data:`WIDE_TURN` and onto each of the path's ``tilts`` (moving along
+    that segment), and where it is much worse, three times wider. With ``blurred`` (not near
+    another object) and a ``shutter`` not known to be "sharp", an object moving at least
+    :data:`BLUR_SPEED` px per frame whose look fits worse than it did (or, while ``shutter`` is
+    None, at least :data:`PROBE_SPEED`) is also matched motion-blurred (:func:`_blurred`, over
+    each of :data:`SHUTTERS` of a frame's motion): a sharp look matched to a long streak slides
     along it. A candidate pays for its distance from the prediction: the recent RMS times
     (distance / reach)^2, so a look-alike in the scenery does not win over the object where it
     is expected. The template returned is the sharp one (the next frame blurs it anew)."""
@@ -1284,7 +1290,10 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     shape = frames.shape[1:3]
     halves = [np.asarray(h, float) for h in halves]
     angles0 = np.asarray(angles, float).reshape(n)
-    scenery = _scenery(frames, start, halves, angles0)
+    # the plain median of the sampled frames: the rough pass's scenery (objects' start
+    # footprints unknown) and the first background's starting point
+    plain = frame_median(frames[_sample(len(frames), BACKGROUND_FRAMES)])
+    scenery = _scenery(plain, start, halves, angles0)
     fwd, r_f, b_f, lost_f = _rough_pass(frames, start, halves, angles0, start_frame, +1, fps, first_frame, on_loss,
                                         scenery, path_tilts)
     bwd, r_b, b_b, _ = _rough_pass(frames, start, halves, angles0, start_frame, -1, fps, first_frame, "hold",
@@ -1315,7 +1324,7 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     bg = None
     for grow_extra in (0.5 * max(max(h) for h in halves), 0.0):
         bg = colour_background(frames, _covered(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
-                               region=region, median=None if bg is None else bg.median)
+                               region=region, median=plain if bg is None else bg.median)
         looks = []
         for i in range(n):
             for after_moving in (True, False):  # the frames it rested in if the others show no object
