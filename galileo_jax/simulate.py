@@ -229,8 +229,8 @@ def structure_key(sim: Simulator) -> tuple:
     engine reads the ``MjModel`` itself on the host; its problems are keyed by the scene:
     :func:`~galileo_jax.inference.problem.get_engine`.)
     """
-    ctx = sim.ctx
-    static_ctx = (ctx.n_objects, ctx.on_ramp, ctx.object_pair, ctx.bodies, ctx.dofs, ctx.ramp_pairs, ctx.floor_pairs)
+    # every field of the effects' context but the numbers SimArrays carries into the program
+    static_ctx = tuple(getattr(sim.ctx, f.name) for f in dataclasses.fields(sim.ctx) if f.name not in SimArrays._fields)
     structure = jax.tree_util.tree_structure((sim.model, sim.data0, sim.arrays.base))
     return ("structure", structure, sim.index, static_ctx, sim.effects, sim.dt, sim.engine)
 

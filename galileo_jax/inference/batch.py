@@ -100,8 +100,7 @@ def stack_data(problems: Sequence[Problem]) -> tuple[Engine, ProblemData]:
     compat = {p.engine.key[:-1] for p in problems}  # all but the rollout length
     if len(compat) > 1:
         raise ValueError("a batch needs videos of one scene structure, frame rate, effects and engine; got "
-                         f"{len(compat)} "
-                         "different ones (fit each group as its own batch)")
+                         f"{len(compat)} different ones (fit each group as its own batch)")
     meta = {(p.likelihood.kind, p.likelihood.sd_model, p.likelihood.whiten.shape) for p in problems}
     if len(meta) > 1:
         raise ValueError(f"a batch needs one likelihood kind, sd_model and padded length; got {sorted(map(str, meta))} "

@@ -17,9 +17,9 @@ Every :class:`Problem` of the same scene structure (:func:`~galileo_jax.simulate
 the objects, their shapes and contacts, not the ramp angle, lengths, start positions or
 sizes), effects and (bucketed) video length shares one set of jitted functions (module-level
 caches), so a second video, even of a new scene, costs no tracing or compilation in the same
-process, and JAX's persistent cache serves the next process. Shapes are bucketed: the profile is padded to a multiple of
-:data:`PAD_SAMPLES` samples (padding is outside the likelihood's mask) and rollouts cover a
-whole number of :data:`PAD_SAMPLES`-frame blocks after the release.
+process, and JAX's persistent cache serves the next process. Shapes are bucketed: the profile
+is padded to a multiple of :data:`PAD_SAMPLES` samples (padding is outside the likelihood's
+mask) and rollouts cover a whole number of :data:`PAD_SAMPLES`-frame blocks after the release.
 
 Every batched entry point runs ONE vmapped MJX rollout per call (chunked with
 ``jax.lax.map(..., batch_size=max_batch)`` above ``max_batch`` rollouts: see
