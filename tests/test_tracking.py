@@ -701,3 +701,45 @@ def test_path_tilts_are_the_ramps_and_the_floors_image_directions(direction):
     want = (20.0, 0.0) if direction == "right" else (160.0, 180.0)
     assert abs((ramp - want[0] + 180) % 360 - 180) < 1e-6 and abs((floor - want[1] + 180) % 360 - 180) < 1e-6, \
         (ramp, floor)
+
+
+def test_object_tilt_follows_the_path_not_a_hand_pulling_the_rough_track():
+    """The tilt an object is measured at (its template turned to it) comes from its motion
+    along the path. A rough track pulled about by a hand over a resting object (steps of 2-3
+    px in changing directions) must not turn it: it keeps the ramp's tilt (before: the
+    direction of the last jitter, up to 90 degrees off, which turns a checkered look and
+    shifts a square's matte template by px); sliding, it lies exactly along the ramp, then the
+    floor, even where its track wobbles by a few degrees."""
+    from galileo_jax.observe.matte import _angles
+
+    ramp, floor = math.radians(20.0), 0.0
+    d_ramp, d_floor = np.array([math.cos(ramp), math.sin(ramp)]), np.array([1.0, 0.0])
+    rest = [np.array([100.0, 50.0]) + j for j in ([0, 0], [0, -2.5], [2.0, -1.0], [0.5, 1.5], [0, 0], [0, 0])]
+    slide = [rest[-1] + d_ramp * 4.0 * (k + 1) ** 1.2 + np.array([0.0, 0.3 * (-1) ** k]) for k in range(8)]
+    roll = [slide[-1] + d_floor * 12.0 * (k + 1) + np.array([0.0, 0.4 * (-1) ** k]) for k in range(6)]
+    px = np.array(rest + slide + roll)
+    ok = np.ones(len(px), bool)
+    tilt = _angles(px, ok, ramp, tilts=(ramp, floor))
+    assert np.allclose(tilt[:len(rest)], ramp), np.degrees(tilt[:len(rest)])
+    assert np.allclose(tilt[len(rest) + 1:len(rest) + len(slide) - 1], ramp)
+    assert np.allclose(tilt[-4:], floor)
+    assert not np.allclose(_angles(px, ok, ramp)[:len(rest)], ramp)  # the motion's direction alone turns it
+
+
+def test_looks_are_not_learned_where_a_hand_held_the_object():
+    """Object 1's clean looks (templates) come from frames clear of where a hand may have held
+    it. Where the object finder re-found it in motion, a few diagonals down the ramp, its
+    start pixel is there, not where it rested: the frames in which it rested (under the hand)
+    must still be left out, or a template with the hand's fingers in it measures the held
+    object 2 px off (a rendered 11 px cube at 320x240)."""
+    from galileo_jax.observe.matte import _clean_frames
+
+    N = 30
+    px = np.zeros((N, 1, 2))
+    px[:10, 0] = [20.0, 100.0]                                   # at rest, held
+    px[10:, 0] = [[20.0 + 0.4 * k * k, 100.0 + 0.15 * k * k] for k in range(1, N - 9)]
+    good = np.ones((N, 1), bool)
+    speed = np.zeros((N, 1))
+    start = px[20]                                               # found in motion, frame 20
+    ks = _clean_frames(px, good, 0, [np.array([5.5, 5.5])], speed, (240, 320), start)
+    assert len(ks) >= 3 and not np.isin(ks, np.arange(10)).any(), ks

@@ -103,6 +103,9 @@ GAIN = 0.35
 BACKGROUND_MIN = 8.0
 #: Frames, spread evenly over the video, whose per-pixel median is the static background.
 BACKGROUND_FRAMES = 15
+#: A direction of motion within this (rad) of a straight segment of the path is the object's
+#: tilt there (:func:`_angles`); one farther from every segment is not a slide.
+PATH_TILT_SNAP = math.radians(20.0)
 #: Quality a measurement needs where no rough match confirms it (:func:`_bridge`).
 BRIDGE_QUALITY = 0.6
 _CROSS = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
@@ -665,21 +668,39 @@ def _visible_fraction(shape, centre, half, angle) -> float:
     return float(((xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)).sum() / total)
 
 
-def _angles(px: np.ndarray, ok: np.ndarray, angle0: float, min_step: float = 1.5) -> np.ndarray:
+def _angles(px: np.ndarray, ok: np.ndarray, angle0: float, min_step: float = 1.5, tilts=None) -> np.ndarray:
     """(N,) tilt of an object frame by frame: the direction of its motion where it moves more
     than ``min_step`` px per frame (central difference), else the previous frame's; the
     direction is folded into (-90, 90] degrees of ``angle0`` (a box sliding back keeps its
-    tilt)."""
-    out = np.full(len(px), angle0)
-    a = angle0
-    for k in range(len(px)):
-        j0, j1 = max(k - 1, 0), min(k + 1, len(px) - 1)
+    tilt).
+
+    With the path's image ``tilts`` (rad; ramp and floor, from the scene) the tilt is one of
+    them (a box on a straight segment lies along it): the one the motion's direction is
+    within :data:`PATH_TILT_SNAP` of, in this frame and the next (a rough track pulled about
+    by a hand over a resting object goes no steady way); otherwise the previous frame's."""
+    N = len(px)
+    direction = np.full(N, np.nan)
+    for k in range(N):
+        j0, j1 = max(k - 1, 0), min(k + 1, N - 1)
         if ok[j0] and ok[j1] and j1 > j0:
             v = (px[j1] - px[j0]) / (j1 - j0)
             if np.linalg.norm(v) > min_step:
                 b = math.atan2(v[1], v[0])
-                b = (b - angle0 + math.pi / 2) % math.pi - math.pi / 2 + angle0
-                a = b
+                direction[k] = (b - angle0 + math.pi / 2) % math.pi - math.pi / 2 + angle0
+    if tilts is not None:
+        snapped = np.full(N, np.nan)
+        for k in np.flatnonzero(np.isfinite(direction)):
+            off = [(t - direction[k] + math.pi / 2) % math.pi - math.pi / 2 for t in tilts]
+            j = int(np.argmin(np.abs(off)))
+            if abs(off[j]) <= PATH_TILT_SNAP:
+                snapped[k] = direction[k] + off[j]
+        steady = np.isfinite(snapped) & np.isclose(snapped, np.append(snapped[1:], np.nan))
+        direction = np.where(steady, snapped, np.nan)
+    out = np.full(N, angle0)
+    a = angle0
+    for k in range(N):
+        if np.isfinite(direction[k]):
+            a = direction[k]
         out[k] = a
     return out
 
@@ -1164,7 +1185,11 @@ def _clean_frames(px: np.ndarray, good: np.ndarray, i: int, halves, speed: np.nd
             if j != i and np.all(np.isfinite(px[k, j])) and \
                     np.linalg.norm(px[k, i] - px[k, j]) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + 4:
                 ok[k] = False
-    moved = ok & (np.linalg.norm(px[:, i] - start[i], axis=-1) > diag)
+    # where a hand may have held it: its start pixel, and where it rested in the track's first
+    # frame (the start pixel may be one found in motion, a few diagonals down the ramp)
+    first = np.all(np.isfinite(px[:, i]), axis=1)
+    rest = px[int(np.argmax(first)), i] if first.any() else start[i]
+    moved = ok & (np.linalg.norm(px[:, i] - start[i], axis=-1) > diag) & (np.linalg.norm(px[:, i] - rest, axis=-1) > diag)
     use = moved if after_moving and moved.sum() >= 3 else ok
     ks = np.flatnonzero(use)
     if len(ks) > n_max:
@@ -1302,7 +1327,8 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     rough[:start_frame], rough_rms[:start_frame], rough_ok[:start_frame] = bwd[:start_frame], r_b[:start_frame], \
         b_b[:start_frame]
     known = np.all(np.isfinite(rough), axis=-1)
-    angles = np.stack([_angles(np.nan_to_num(rough[:, i]), known[:, i], angles0[i]) for i in range(n)], axis=1)
+    angles = np.stack([_angles(np.nan_to_num(rough[:, i]), known[:, i], angles0[i], tilts=path_tilts)
+                       for i in range(n)], axis=1)
     speed = _speeds(rough)
     reach = max(math.hypot(*h) for h in halves) + 8 + 0.6 * float(speed.max())
     region = (np.nanmin(rough, axis=(0, 1)) - reach, np.nanmax(rough, axis=(0, 1)) + reach + 1)
