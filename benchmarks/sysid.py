@@ -21,7 +21,7 @@ both fit theta = (k1, k2, phi) and nothing else. Then:
   scene as a C MuJoCo model (:func:`galileo_jax.model.build_spec` plus two ``framepos``
   sensors on the objects' bodies). Parameters (``sysid.Parameter`` with MjSpec modifiers):
   k1 and k2 write both sliding columns of the object's contact pairs with the ramp and the
-  floor (the model carries friction in pairs, as :func:`galileo_jax.synth.set_physics` and
+  floor (the model carries friction in pairs, as :func:`galileo_jax.model.set_physics` and
   :func:`galileo_jax.simulate.apply_params` do), and ``m1`` writes object 1's geom mass with
   object 2's fixed at 0.5 kg (the compiler then recomputes the inertia and ``invweight0``, as
   ``mj_setConst`` does); ``param=phi`` instead writes phi into both masses (total 1 kg). The

@@ -275,3 +275,28 @@ def model_index(model: mujoco.MjModel, n_objects: int) -> ModelIndex:
         pairs.append(tuple(ids))
     op = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PAIR, "object1_object2")
     return ModelIndex(tuple(bodies), tuple(qpos), tuple(dofs), tuple(pairs), int(op), tuple(ramp), tuple(floor))
+
+
+def set_physics(model: mujoco.MjModel, data: mujoco.MjData, index: ModelIndex, mass, friction) -> None:
+    """Write masses and frictions into a C model, as ``simulate.apply_params`` does in MJX.
+
+    The renderer (:mod:`galileo_jax.synth`) and the C engine (:mod:`galileo_jax.simulate_c`)
+    both set the physics through it, so that a rendered video and a fitted rollout agree.
+
+    Args:
+        model, data: the C model (changed in place) and a data for it.
+        index: the model's :class:`ModelIndex`.
+        mass: (n_objects,) masses in kg: ``body_mass``, with ``body_inertia`` scaled by
+            m_i / m_i0.
+        friction: (n_objects,) sliding friction coefficients: ``pair_friction[pid, 0:2]`` of
+            each pair of object i with the ramp and floor.
+
+    ``mj_setConst`` then recomputes ``body_invweight0`` / ``dof_invweight0``.
+    """
+    for i, b in enumerate(index.body):
+        m = float(mass[i])
+        model.body_inertia[b] *= m / model.body_mass[b]
+        model.body_mass[b] = m
+        for pid in index.pairs[i]:
+            model.pair_friction[pid, 0:2] = float(friction[i])
+    mujoco.mj_setConst(model, data)

@@ -16,7 +16,7 @@ derivative: differentiating through it raises (use the MJX engine for ``jacobian
 Per rollout b, a copy of the compiled model gets the masses and frictions as
 :func:`galileo_jax.simulate.apply_params` sets them in MJX (``body_mass``, ``body_inertia``
 x m/m0, ``pair_friction``; ``mj_setConst`` recomputes the invweights, as
-:func:`galileo_jax.synth.set_physics` does for the renderer), then the effects' model updates
+:func:`galileo_jax.model.set_physics` does for the renderer), then the effects' model updates
 and release velocities. Those are evaluated by the effects' own hooks in JAX, inside ``jit``,
 before the callback (:func:`galileo_jax.simulate.rollout`), and reach the host as arrays:
 the host code runs no JAX (JAX called from inside a host callback can deadlock). Effects that
@@ -37,7 +37,7 @@ from mujoco import rollout as mj_rollout
 
 from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
-from galileo_jax.model import object_poses
+from galileo_jax.model import object_poses, set_physics
 
 #: Engines a simulator can run on.
 ENGINES = ("mjx", "mujoco")
@@ -77,9 +77,6 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = 
     Returns:
         (models, state0): B ``MjModel`` copies and (B, nstate) full physics states at release.
     """
-    from galileo_jax.simulate import PhysParams  # simulate imports this module
-    from galileo_jax.synth import set_physics
-
     base = sim.mj_model
     index = sim.index
     data = mujoco.MjData(base)
@@ -88,7 +85,7 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = 
     for b in range(mass.shape[0]):
         m = copy.copy(base)
         mujoco.mj_resetData(m, data)
-        set_physics(m, data, index, PhysParams(mass[b], friction[b]))  # as the renderer sets them
+        set_physics(m, data, index, mass[b], friction[b])  # as the renderer sets them
         for name, value in (fields or {}).items():
             getattr(m, name)[...] = value[b]
         if velocity is not None:

@@ -126,7 +126,7 @@ from galileo_jax.effects.runtime import (apply_c_model, c_step, effect_param_nam
                                          surface_frictions)
 from galileo_jax.cli import OneLineParser  # noqa: E402
 from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
-from galileo_jax.model import ModelIndex, WorldPhysics, build_model, object_start_pose  # noqa: E402
+from galileo_jax.model import ModelIndex, WorldPhysics, build_model, object_start_pose, set_physics  # noqa: E402
 from galileo_jax.scene import Scene, Video, load_scene, save_scene  # noqa: E402
 from galileo_jax.simulate import PhysParams, physics_timestep, scene_effects  # noqa: E402
 
@@ -412,7 +412,7 @@ def frictions_at_rest(scene: Scene, effects, values: Mapping[str, float], fricti
     n = scene.n_objects
     model, index = build_model(scene, effects=effects)
     data = mujoco.MjData(model)
-    set_physics(model, data, index, PhysParams(np.asarray(model.body_mass[list(index.body)]), friction))
+    set_physics(model, data, index, np.asarray(model.body_mass[list(index.body)]), friction)
     ctx = make_context(scene, index, 1.0 / 240.0)
     flat = np.asarray([values[p] for p in effect_param_names(effects)], dtype=float)
     apply_c_model(effects, flat, model, data, index, ctx)
@@ -519,22 +519,6 @@ def draw_informative_params(scene: Scene, rng: np.random.Generator, effects, *, 
 # --------------------------------------------------------------------------- physics
 
 
-def set_physics(model: mujoco.MjModel, data: mujoco.MjData, index: ModelIndex, params: PhysParams) -> None:
-    """Write masses and frictions into a C model, as ``simulate.apply_params`` does in MJX.
-
-    Mass m_i sets ``body_mass`` and scales ``body_inertia`` by m_i / m_i0; friction k_i goes into
-    ``pair_friction[pid, 0:2]`` of each pair of object i with the ramp and floor; then
-    ``mj_setConst`` recomputes ``body_invweight0`` / ``dof_invweight0`` (in place).
-    """
-    for i, b in enumerate(index.body):
-        m = float(params.mass[i])
-        model.body_inertia[b] *= m / model.body_mass[b]
-        model.body_mass[b] = m
-        for pid in index.pairs[i]:
-            model.pair_friction[pid, 0:2] = float(params.friction[i])
-    mujoco.mj_setConst(model, data)
-
-
 def _centres(qpos: np.ndarray, index: ModelIndex) -> np.ndarray:
     """(..., nq) -> (..., n_objects, 2) world (x, z) of the object centres in m."""
     return np.stack([qpos[..., [a, a + 2]] for a in index.qpos], axis=-2)
@@ -586,7 +570,7 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
     dt = physics_timestep(fps, substeps)
     model, index = build_model(scene, timestep=dt, effects=effs, world=world)
     data = mujoco.MjData(model)
-    set_physics(model, data, index, params)
+    set_physics(model, data, index, params.mass, params.friction)
     mujoco.mj_forward(model, data)
     ctx = make_context(scene, index, dt)
     k_base = np.asarray(params.friction, dtype=np.float64).reshape(-1)
