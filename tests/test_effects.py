@@ -54,6 +54,23 @@ def test_registry_lists_shipped_effects_and_rejects_bad_names():
         register_effect(dup)
 
 
+def test_a_users_effect_of_a_shipped_name_is_refused_or_kept():
+    """The shipped effects are registered when the package is imported, so a user's effect of
+    a shipped name is refused without ``replace=True`` and, with it, stays (before, the
+    library registered itself with replace=True on first use and silently overwrote it).
+    In a fresh process: the registry's module imported first, as a user's plug-in would."""
+    import subprocess
+    import sys
+
+    code = ("from galileo_jax.effects.base import Effect, EffectParam, get_effect, register_effect\n"
+            "mine = Effect('quadratic_drag', 'mine', params=(EffectParam('drag_mine', '1/m', 0, 0, 1, 0.1, (0.1, 0.2)),))\n"
+            "try:\n    register_effect(mine)\n    print('registered')\nexcept ValueError:\n    print('refused')\n"
+            "register_effect(mine, replace=True)\n"
+            "print(get_effect('quadratic_drag').summary)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["refused", "mine"], out
+
+
 def test_neutral_values_give_the_base_model_exactly():
     scene = _scene()
     effects = [e for e in available_effects().values() if e.params and not e.applies(scene)]

@@ -187,6 +187,10 @@ _ENTRY_POINTS_LOADED = False
 def register_effect(effect: Effect, *, replace: bool = False) -> Effect:
     """Add ``effect`` to the registry under ``effect.name`` and return it.
 
+    The shipped effects (:mod:`galileo_jax.effects.library`) are registered when the package
+    :mod:`galileo_jax.effects` is imported, before any user code can register one: a user's
+    effect of a shipped name needs ``replace=True``, and is not overwritten later.
+
     Raises:
         ValueError: the name is taken (pass ``replace=True`` to overwrite), or one of its
             parameter names is already used by another effect, or a parameter's neutral
@@ -219,8 +223,6 @@ def _load_entry_points() -> None:
 
 def available_effects() -> dict[str, Effect]:
     """All registered effects by name (the shipped library, user registrations, entry points)."""
-    import galileo_jax.effects.library  # noqa: F401 - registers the shipped effects
-
     _load_entry_points()
     return dict(_REGISTRY)
 

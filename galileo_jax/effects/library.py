@@ -292,7 +292,7 @@ ROLLING = Effect(
 )
 
 for _e in (QUADRATIC_DRAG, LINEAR_DRAG, RESTITUTION, RAMP_FRICTION, INITIAL_PUSH, ROLLING, VELOCITY_FRICTION):
-    register_effect(_e, replace=True)
+    register_effect(_e)  # once, on the package's import (galileo_jax/effects/__init__.py)
 
 #: Names of the shipped effects, in the order above.
 SHIPPED = ("quadratic_drag", "linear_drag", "restitution", "ramp_friction", "initial_push", "rolling",
