@@ -16,7 +16,7 @@ frictions on (0, 0.3), masses on (0, 1)), the like-for-like comparison with its 
 It also times the training step (examples per second on this machine) and reads each model's
 training record. Writes ``benchmarks/results/cnn_accuracy.{md,json}``.
 
-    python benchmarks/cnn_accuracy.py [--models models/ramp_20_cnn,models/ramp_20_seedcnn,benchmarks/models/ramp_20_cnn_seedprior] [--tests 1000]
+    python benchmarks/cnn_accuracy.py [--models galileo_jax/models/ramp_20_cnn,galileo_jax/models/ramp_20_seedcnn,benchmarks/models/ramp_20_cnn_seedprior] [--tests 1000]
 """
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ def write_tables(results: list[dict], n_tests: int) -> None:
              "(target 85-95%). 'all': every test; 'object 2 slides >= 5 cm': the tests where k2 and phi show in "
              "the profile at all (when object 1 stops before object 2, or barely nudges it, nothing can tell them). "
              "\"seed's prior\": tests drawn as the seed drew its own (frictions uniform on (0, 0.3), masses on "
-             "(0, 1), so phi is not uniform), the like-for-like comparison with its table. models/ramp_20_cnn and "
+             "(0, 1), so phi is not uniform), the like-for-like comparison with its table. galileo_jax/models/ramp_20_cnn and "
              "ramp_20_seedcnn were trained on the wider default prior (k on (0, 1), phi on (-1, 1)); "
              "benchmarks/models/ramp_20_cnn_seedprior is the default network trained on the seed's prior "
              "(configs/cnn_ramp20_seedprior.yaml), so for it the two priors are the same.",
@@ -163,7 +163,7 @@ def write_tables(results: list[dict], n_tests: int) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", default="models/ramp_20_cnn,models/ramp_20_seedcnn,benchmarks/models/ramp_20_cnn_seedprior")
+    ap.add_argument("--models", default="galileo_jax/models/ramp_20_cnn,galileo_jax/models/ramp_20_seedcnn,benchmarks/models/ramp_20_cnn_seedprior")
     ap.add_argument("--tests", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=2026)
     args = ap.parse_args(argv)

@@ -55,7 +55,7 @@ class GradConfig(_Strict):
 
 class CNNConfig(_Strict):
     """The amortised-inference CNN (``--method cnn``, ``--init cnn``): the model folder (None:
-    the shipped model matching the scene, under ``models/``) and, for grad started from it,
+    the shipped model matching the scene, :func:`galileo_jax.inference.cnn.model_dirs`) and, for grad started from it,
     the smallest half-width of the screen around its estimate (fraction of each range; wider
     where the CNN's 90% interval is wider)."""
 

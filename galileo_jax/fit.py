@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "seed: the seed's coin-toss sampler (baseline, one video)")
     p.add_argument("--init", default="prior", choices=("prior", "cnn"),
                    help="grad/mh: start from the prior (default) or from the trained CNN's estimate")
-    p.add_argument("--cnn-model", help="trained CNN folder (default: the shipped model matching the scene, models/)")
+    p.add_argument("--cnn-model", help="trained CNN folder (default: the model matching the scene in galileo_jax/models/, $GALILEO_JAX_MODELS or ./models)")
     p.add_argument("--per-video", help="several videos: parameters fitted per video, comma-separated "
                                        "(default: all shared except dt_release and v0)")
     p.add_argument("--out", help="output folder (default: <first video>_fit next to it)")

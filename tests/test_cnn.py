@@ -198,3 +198,30 @@ def test_seed_prior_draws_as_the_seed_drew():
     assert drawn[:, s.engine.space.index("k2")].max() <= 0.3
     scene_drawn = np.asarray(draw_prior(setup(TrainConfig(), SCENE)[0], jax.random.PRNGKey(1), 4000))
     assert scene_drawn[:, s.engine.space.index("k2")].max() > 0.5  # the scene's prior is wider: the test can fail
+
+
+def test_shipped_model_is_package_data_and_other_folders_are_searched(tmp_path, monkeypatch):
+    """The shipped CNNs live inside the package (so a non-editable ``pip install .`` has them)
+    and are found by the scene's physics; folders named by ``$GALILEO_JAX_MODELS`` and
+    ``./models`` are searched too, in that order after the package's, and without any, a
+    scene with no model gets the one-line error that says how to train one."""
+    import shutil
+
+    import galileo_jax
+
+    assert cnn.MODELS_DIR.parent == __import__("pathlib").Path(galileo_jax.__file__).parent
+    scene = load_scene("scenes/ramp_20.yaml")
+    assert cnn.find_model(scene, 30.0).path.parent == cnn.MODELS_DIR
+    elsewhere = tmp_path / "mine"
+    shutil.copytree(cnn.MODELS_DIR / "ramp_20_cnn", elsewhere / "ramp_20_cnn")
+    empty = tmp_path / "none"
+    empty.mkdir()
+    monkeypatch.setattr(cnn, "MODELS_DIR", empty)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(cnn.CNNError, match="no trained CNN matches scene.*train one"):
+        cnn.find_model(scene, 30.0)
+    monkeypatch.setenv(cnn.MODELS_ENV, str(elsewhere))
+    assert cnn.find_model(scene, 30.0).path == elsewhere / "ramp_20_cnn"
+    monkeypatch.delenv(cnn.MODELS_ENV)
+    shutil.copytree(elsewhere, tmp_path / "models")
+    assert cnn.find_model(scene, 30.0).path.resolve() == (tmp_path / "models" / "ramp_20_cnn").resolve()

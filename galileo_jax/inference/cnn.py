@@ -39,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -64,8 +65,13 @@ MIN_SD = 1e-3
 #: Speed (m/s) above which a simulated training profile counts as blown up: no object on a
 #: ramp of at most 1 m reaches sqrt(2 g 1 m) = 4.4 m/s.
 MAX_SPEED = 10.0
-#: Folder of the models shipped with the package's repository (searched by :func:`find_model`).
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+#: Folder of the models shipped inside the package (package data, so ``pip install .`` has
+#: them too; searched first by :func:`find_model`).
+MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+#: Environment variable naming more folders of trained models (``os.pathsep``-separated),
+#: searched after :data:`MODELS_DIR` and before ``./models`` (where ``galileo_jax.train``
+#: writes by default).
+MODELS_ENV = "GALILEO_JAX_MODELS"
 #: Largest relative difference between a video's frame rate and the model's.
 FPS_TOLERANCE = 0.02
 
@@ -509,8 +515,9 @@ def load_model(path: Path) -> TrainedModel:
 def find_model(scene: Scene, fps: float, path: Path | str | None = None,
                architecture: str | None = None) -> TrainedModel:
     """The trained model for ``scene`` at ``fps``: ``path`` if given, else the first folder
-    under :data:`MODELS_DIR` whose spec matches the scene's physics (:func:`scene_hash`) and
-    frame rate (within :data:`FPS_TOLERANCE`), preferring the default architecture.
+    under :func:`model_dirs` whose spec matches the scene's physics (:func:`scene_hash`) and
+    frame rate (within :data:`FPS_TOLERANCE`), preferring the default architecture (and,
+    among equals, the earlier folder).
 
     Raises:
         CNNError: ``path`` does not fit the scene, or no shipped model does (the message says
@@ -524,18 +531,30 @@ def find_model(scene: Scene, fps: float, path: Path | str | None = None,
                            f"from scene {scene.name!r}; train one for this scene (python -m galileo_jax.train)")
         return model
     found = []
-    for meta in sorted(MODELS_DIR.glob("*/model.json")):
+    metas = [m for d in model_dirs() for m in sorted(d.glob("*/model.json"))]
+    for order, meta in enumerate(metas):
         try:
             spec = CNNSpec.from_json(json.loads(meta.read_text())["spec"])
         except (ValueError, KeyError, TypeError):
             continue
         if spec.scene_hash == want and abs(spec.fps - fps) <= FPS_TOLERANCE * spec.fps \
                 and (architecture is None or spec.architecture == architecture):
-            found.append((spec.architecture != "profile", meta.parent))
+            found.append((spec.architecture != "profile", order, meta.parent))
     if not found:
         raise CNNError(f"no trained CNN matches scene {scene.name!r} at {fps:g} fps; train one: python -m "
                        f"galileo_jax.train --config configs/cnn_ramp20.yaml --scene YOUR_SCENE.yaml --out models/NAME")
-    return load_model(sorted(found)[0][1])
+    return load_model(sorted(found)[0][2])
+
+
+def model_dirs() -> list[Path]:
+    """Folders searched for trained models, in order: the package's own (:data:`MODELS_DIR`),
+    those named by ``$GALILEO_JAX_MODELS`` (:data:`MODELS_ENV`), and ``./models``."""
+    extra = [Path(p) for p in os.environ.get(MODELS_ENV, "").split(os.pathsep) if p]
+    out = []
+    for d in [MODELS_DIR, *extra, Path.cwd() / "models"]:
+        if d.is_dir() and all(d.resolve() != o.resolve() for o in out):
+            out.append(d)
+    return out
 
 
 # ---------------------------------------------------------------------------- an estimate for one video
