@@ -21,7 +21,7 @@ the renderer: no scale tolerance). The intervals are the central 50% and 90% int
 fit's posterior draws (``posterior.nc``: mh's chains, grad's and cnn's Gaussian approximation);
 the rank is the share of draws below the truth.
 
-    python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn] [--work DIR] [--rerun]
+    python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn,grad+cnn] [--work DIR] [--rerun]
 
 Writes ``benchmarks/results/coverage.{md,json}``; videos and per-video records go under
 ``--work`` (default ``benchmarks/results/coverage/``; videos not kept in git). Resumable: a video
@@ -92,7 +92,8 @@ def truth_record(draws: np.ndarray, truth: float) -> dict:
 
 
 def fit_one(video: Path, method: str) -> dict:
-    """Fit ``video`` as ``fit --method METHOD`` does; its record (an ``error`` if it failed)."""
+    """Fit ``video`` as ``fit --method METHOD`` does (``grad+cnn``: ``--method grad --init cnn``);
+    its record (an ``error`` if it failed)."""
     from galileo_jax.config import FitConfig
     from galileo_jax.pipeline import run_fit
     from galileo_jax.scene import load_scene
@@ -101,8 +102,10 @@ def fit_one(video: Path, method: str) -> dict:
     rec = {"video": video.name, "method": method, "truth": {n: truth[n] for n in NAMES}}
     t = time.perf_counter()
     try:
-        rep = run_fit(video, load_scene(video.with_suffix(".yaml")), FitConfig(), method=method,
-                      out=video.parent / f"{video.stem}_{method}", overlay=False, progress=False)
+        name, _, init = method.partition("+")
+        rep = run_fit(video, load_scene(video.with_suffix(".yaml")), FitConfig(), method=name,
+                      out=video.parent / f"{video.stem}_{method}", overlay=False, progress=False,
+                      init=init or "prior")
     except Exception as err:  # noqa: BLE001 - a failure is a result here
         rec["error"] = f"{type(err).__name__}: {err}"
         return rec
@@ -168,17 +171,34 @@ def tables(summary: dict, records: list[dict]) -> list[str]:
         lines.append(f"| {r['video']} | {r['method']} | "
                      + " | ".join(f"{r['truth'][n]:.3f} / {r[n]['estimate']:.3f}" for n in NAMES)
                      + f" | {miss} | {r['rmse_over_noise']:.1f} | {r['competing_optima']} |")
+    lines += ["", "Time and convergence per method (wall time of one fit, tracking included; mh's largest "
+              "R-hat over k1, k2, phi, rank-normalised split R-hat, Vehtari et al. 2021):", ""]
+    for method in summary:
+        ok = [r for r in records if r["method"] == method and "error" not in r]
+        wall = np.array([r["wall_s"] for r in ok])
+        line = f"- {method}: median {np.median(wall):.1f} s, 90th percentile {np.percentile(wall, 90):.1f} s"
+        rhat = np.array([r["rhat_max"] for r in ok if r.get("rhat_max")])
+        if len(rhat):
+            line += (f"; R-hat median {np.median(rhat):.3f}, at most 1.01 in {int((rhat <= 1.01).sum())}, at most "
+                     f"1.05 in {int((rhat <= 1.05).sum())}, at most 1.1 in {int((rhat <= 1.1).sum())} of {len(rhat)}, "
+                     f"largest {rhat.max():.2f}")
+        lines.append(line)
     failed = [r for r in records if "error" in r]
-    if failed:
-        lines += ["", "Videos the fit stopped on:", ""] + [f"- {r['video']} ({r['method']}): {r['error'][:200]}"
-                                                          for r in failed]
+    if failed:  # one line per method and message (a CNN missing for a scene stops every video of it)
+        groups: dict = {}
+        for r in failed:
+            groups.setdefault((r["method"], r["error"][:200]), []).append(r["video"])
+        lines += ["", "Videos the fit stopped on:", ""] + [
+            f"- {m} on {len(v)} video{'s' if len(v) > 1 else ''} ({', '.join(v[:4])}{', ...' if len(v) > 4 else ''}): {e}"
+            for (m, e), v in groups.items()]
     return lines
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--videos", type=int, default=100)
-    ap.add_argument("--methods", default="grad", help="comma-separated fit methods (grad, mh, cnn)")
+    ap.add_argument("--methods", default="grad",
+                    help="comma-separated fit methods (grad, mh, cnn; grad+cnn: grad started from the CNN)")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--work", type=Path, default=RESULTS / "coverage")
     ap.add_argument("--rerun", action="store_true", help="fit again videos that have a record")
