@@ -72,6 +72,9 @@ def test_grad_recovers_truth(problem):
     assert p["k1"]["mean"] == pytest.approx(est["k1"]) and p["k1"]["rhat"] is None
     assert not p["m1"]["identifiable"] and p["m1"]["mean"] is None
     assert summ["diagnostics"]["jacobian"] == "fd"
+    # simulated data with white noise and the model's own floor: no interval widened much
+    assert res.inflation is not None and np.all(res.inflation >= 1.0) and np.all(res.inflation < 1.5)
+    assert set(summ["diagnostics"]["interval_widening"]) == set(problem.names)
 
 
 def test_grad_rejects_bad_arguments(problem):
@@ -193,6 +196,49 @@ def test_gauss_newton_covariance_gives_a_blown_up_coordinate_no_made_up_interval
     np.testing.assert_allclose(cov[:2, :2], gauss_newton_covariance(jac[:, :2]))
     assert np.all(np.isfinite(full))  # all finite: the usual (J^T J)^-1
     np.testing.assert_allclose(full, np.linalg.inv(jac.T @ jac), rtol=1e-6)
+
+
+def _ar1(rng, shape, rho):
+    """(T, M) AR(1) series with unit marginal variance and lag-1 correlation ``rho``."""
+    e = rng.normal(size=shape)
+    out = np.empty(shape)
+    out[:, 0] = e[:, 0]
+    for k in range(1, shape[1]):
+        out[:, k] = rho * out[:, k - 1] + np.sqrt(1 - rho ** 2) * e[:, k]
+    return out
+
+
+def test_sandwich_widens_intervals_by_the_residuals_autocorrelation_only():
+    """The mean of T series of M samples (a constant fitted by least squares, J = 1): with
+    independent unit residuals the Gauss-Newton SD is right (no widening); with AR(1)
+    residuals of lag-1 correlation rho the mean's true variance is (1 + rho) / (1 - rho) times
+    the Gauss-Newton one (x19 at rho 0.9: SD x4.4), which the sandwich recovers, in part (a
+    finite bandwidth); residuals smaller than the claimed noise never narrow an interval."""
+    from galileo_jax.inference.grad import gauss_newton_covariance, robust_covariance
+
+    T, M = 4, 200
+    rng = np.random.default_rng(3)
+    jac = np.ones((T * M, 1))
+    gn = gauss_newton_covariance(jac)
+    white = [robust_covariance(jac, rng.normal(size=T * M), [(T, M)], gn)[1][0] for _ in range(20)]
+    assert 1.0 <= np.median(white) < 1.15
+    corr = [robust_covariance(jac, _ar1(rng, (T, M), 0.9).ravel(), [(T, M)], gn)[1][0] for _ in range(20)]
+    assert 2.5 < np.median(corr) < 5.0, np.median(corr)
+    small = robust_covariance(jac, 0.3 * _ar1(rng, (T, M), 0.5).ravel(), [(T, M)], gn)
+    assert small[1][0] == 1.0 and np.array_equal(small[0], gn)
+    # two blocks (a joint fit's videos) of other lengths, a coordinate the residuals do not
+    # depend on and a blown-up one
+    jac3 = np.ones((T * M + 2 * 50, 3))
+    jac3[:, 1] = 0.0
+    jac3[5, 2] = np.nan
+    cov3 = gauss_newton_covariance(jac3)
+    r = np.concatenate([_ar1(rng, (T, M), 0.9).ravel(), _ar1(rng, (2, 50), 0.9).ravel()])
+    cov, infl = robust_covariance(jac3, r, [(T, M), (2, 50)], cov3)
+    assert infl[0] > 2.0 and infl[1] == infl[2] == 1.0
+    assert cov[1, 1] == cov3[1, 1] and np.isinf(cov[2, 2])
+    assert cov[0, 0] == pytest.approx(cov3[0, 0] * infl[0] ** 2)
+    with pytest.raises(ValueError, match="do not make up"):
+        robust_covariance(jac, np.zeros(T * M), [(T, M + 1)], gn)
 
 
 @pytest.mark.slow

@@ -42,7 +42,7 @@ from jax.sharding import PartitionSpec as P
 
 from galileo_jax.inference.grad import (MAX_LM_STARTS, GradResult, _lm_solver, diverse_best,
                                         gauss_newton_covariance, grad_result, latin_hypercube_starts, polish_many,
-                                        residual_jacobian, unit_box)
+                                        residual_jacobian, unit_box, widened)
 from galileo_jax.inference.problem import (DEFAULT_FD_STEP, Engine, Problem, ProblemData, cached_jit,
                                            check_residual_args, fd_jacobian_fn, map_batch)
 
@@ -64,6 +64,7 @@ class BatchSolve(NamedTuple):
         best: (B,) index of each video's winning start.
         jac: (B, R, d) finite-difference Jacobian of the standardised residuals at each video's
             winning end point (R residuals, 1 / unit of z).
+        resid: (B, R) the standardised residuals there.
     """
 
     z0: jax.Array
@@ -74,6 +75,7 @@ class BatchSolve(NamedTuple):
     codes: jax.Array
     best: jax.Array
     jac: jax.Array
+    resid: jax.Array
 
 
 def video_mesh(devices: Sequence | None = None) -> Mesh | None:
@@ -188,8 +190,8 @@ def solve_batch(engine: Engine, z_cand: jax.Array, data: ProblemData, *, n_start
         z_end, cost, steps, ok, codes = solve(z0, d)
         cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
         best = jnp.argmin(cost)
-        jac = jac_fd(z_end[best], d)
-        return BatchSolve(z0, z_end, cost, steps, ok, codes, best, jac)
+        resid, jac = jac_fd(z_end[best], d)
+        return BatchSolve(z0, z_end, cost, steps, ok, codes, best, jac, resid)
 
     b = jax.tree_util.tree_leaves(data)[0].shape[0]
     zc = jnp.broadcast_to(jnp.asarray(z_cand, jnp.float64), (b, *z_cand.shape))
@@ -270,15 +272,17 @@ def fit_grad_batch(problems: Sequence[Problem], key: jax.Array, *, n_starts: int
         moved = cost_pol < cost_best
         if moved.any():
             jac_fn = residual_jacobian(fd_jacobian_fn(engine.residuals_z, fd_step))
-            jac = np.asarray(map_videos(engine, ("batch_jacobian", fd_step), jac_fn,
-                                        (_pad_videos(jnp.asarray(z_pol), b_pad), data), mesh))[:b]
+            resid, jac = (np.asarray(a)[:b] for a in map_videos(engine, ("batch_residuals_jacobian", fd_step), jac_fn,
+                                                               (_pad_videos(jnp.asarray(z_pol), b_pad), data), mesh))
             for j in np.flatnonzero(moved):
                 cov_z[j] = gauss_newton_covariance(jac[j])
+                out.jac[j], out.resid[j] = jac[j], resid[j]
             z_hat = np.where(moved[:, None], z_pol, z_hat)
             cost_best = np.where(moved, cost_pol, cost_best)
     elapsed = (time.perf_counter() - t0) / b
     theta0 = np.asarray(space.from_unconstrained(jnp.asarray(out.z0)), np.float64)
-    return [grad_result(space, p.likelihood.log_norm, z_hat[j], cov_z[j], float(cost_best[j]), theta0[j],
+    widen = [widened(out.jac[j], out.resid[j], p.likelihood, cov_z[j]) for j, p in enumerate(problems)]
+    return [grad_result(space, p.likelihood.log_norm, z_hat[j], widen[j][0], float(cost_best[j]), theta0[j],
                         out.z_end[j], out.cost[j].astype(np.float64), out.steps[j], out.ok[j], out.codes[j],
-                        int(best[j]), jacobian, elapsed)
+                        int(best[j]), jacobian, elapsed, widen[j][1])
             for j, p in enumerate(problems)]

@@ -44,10 +44,25 @@ residuals J^T J is the Fisher information, so Cov(z) = (J^T J)^-1 (J by central 
 mapped to theta by the delta method Cov(theta) = G Cov(z) G^T with G = diag(d theta / d z);
 90% intervals are z_hat +- 1.645 sd_z mapped through the (monotone) transform, so they stay
 inside the bounds.
+
+That covariance holds if the standardised residuals are independent with unit variance. Where
+the model misfits (tracking errors a few px long during motion blur, a missing effect, the
+simulator's roughness at the impact) they are correlated over many frames, and the data hold
+fewer independent pieces of information than samples: measured on the coverage benchmark
+(``benchmarks/results/coverage.md``), the Gauss-Newton 90% intervals covered 0.67 / 0.75 / 0.68
+of the truths of k1 / k2 / phi (0.33 / 0.63 / 0.37 on plain cubes through a perspective
+camera). Each coordinate's variance is therefore also estimated by the heteroscedasticity-
+and autocorrelation-consistent "sandwich" (J^T J)^-1 S (J^T J)^-1 (:func:`robust_covariance`:
+Newey & West 1987, Bartlett weights, the bandwidth from the residuals' lag-1 autocorrelation
+by Andrews 1991), and where it is larger the coordinate's interval is widened by the ratio of
+the two SDs (:attr:`GradResult.inflation`), keeping the Gauss-Newton correlations. Where the
+residuals are smaller than the likelihood's noise (the model-error floor dominates) the
+sandwich is smaller, and the Gauss-Newton covariance stands.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable, NamedTuple
 
@@ -86,6 +101,8 @@ class GradResult(NamedTuple):
         jacobian: "fd" or "ad".
         time_s: wall time of the solve (including compilation) in s.
         fixed: names of the parameters held at given values (not fitted).
+        inflation: (d,) factor by which each coordinate's Gauss-Newton SD was widened to the
+            sandwich estimate's (:func:`robust_covariance`; 1 where it was not), or None.
     """
 
     names: tuple[str, ...]
@@ -108,6 +125,7 @@ class GradResult(NamedTuple):
     jacobian: str
     time_s: float
     fixed: tuple[str, ...] = ()
+    inflation: np.ndarray | None = None
 
 
 #: Starting points of the release-time correction are drawn from this fraction of its range,
@@ -216,6 +234,82 @@ def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
     return cov
 
 
+def robust_covariance(jac: np.ndarray, resid: np.ndarray, series, cov_gn: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss-Newton covariance widened, per coordinate, to the sandwich estimate's SD where
+    that is larger (module docstring, "Uncertainty").
+
+    The sandwich (Huber 1967; White 1980) is A S A with A = ``cov_gn`` = (J^T J)^-1 and S the
+    Newey-West (1987) long-run covariance of the score contributions g_k = J_k r_k summed over
+    each time series (a trace of a video): S = sum_k g_k g_k^T + sum_{l=1..L} (1 - l/(L+1))
+    sum_k (g_k g_{k+l}^T + g_{k+l} g_k^T). The bandwidth L is Andrews' (1991, eq. 6.4, Bartlett
+    kernel) AR(1) plug-in, 1.1447 (alpha n)^(1/3) with alpha = 4 rho^2 / ((1 - rho)^2 (1 + rho)^2),
+    rho the residuals' pooled lag-1 autocorrelation (clipped to +-0.97) and n the used samples
+    per series. A coordinate's variance is never taken below White's (1980) heteroscedasticity-
+    consistent one (S without the lags): velocities differenced from tracked positions have a
+    lag-1 correlation of -1/2, which the iid likelihood already leaves out and which would
+    otherwise cancel the widening where the residuals are larger than the noise claimed
+    (measured: ``tests/test_coverage_check.py``, half the noise claimed: 90% coverage 0.6 with
+    the lags' cancellation, 0.5 without any widening).
+
+    Args:
+        jac: (R, d) Jacobian of the standardised residuals.
+        resid: (R,) standardised residuals at the estimate (0 at unused samples).
+        series: list of (T, M) shapes: the residual vector is their blocks one after the other,
+            each T series of M samples (trace-major, :meth:`~galileo_jax.likelihood.Likelihood.residuals`).
+        cov_gn: (d, d) :func:`gauss_newton_covariance` of ``jac`` (infinite for coordinates with a
+            non-finite Jacobian column, zero for held ones).
+
+    Returns:
+        ``(cov, inflation)``: (d, d) covariance D cov_gn D with D = diag(inflation), and (d,)
+        inflation = max(1, sd_sandwich / sd_gauss_newton) (1 where either is not finite or zero).
+
+    Raises:
+        ValueError: ``series`` does not add up to R.
+    """
+    jac, resid = np.asarray(jac, np.float64), np.asarray(resid, np.float64)
+    R, d = jac.shape
+    if sum(t * m for t, m in series) != R or resid.shape != (R,):
+        raise ValueError(f"series {list(series)} do not make up {R} residuals (got {resid.shape})")
+    var_gn = np.diag(cov_gn)
+    good = np.isfinite(var_gn) & (var_gn > 0) & np.all(np.isfinite(jac), axis=0)
+    inflation = np.ones(d)
+    if not good.any() or not np.all(np.isfinite(resid)):
+        return cov_gn, inflation
+    blocks, at = [], 0
+    for t, m in series:
+        blocks.append((resid[at:at + t * m].reshape(t, m), jac[at:at + t * m][:, good].reshape(t, m, -1)))
+        at += t * m
+    lag0 = sum(float(np.sum(r * r)) for r, _ in blocks)
+    lag1 = sum(float(np.sum(r[:, 1:] * r[:, :-1])) for r, _ in blocks)
+    rho = float(np.clip(lag1 / lag0, -0.97, 0.97)) if lag0 > 0 else 0.0
+    alpha = 4 * rho ** 2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+    n = max(np.count_nonzero(resid) / max(sum(t for t, _ in series), 1), 2.0)  # used samples per series
+    L = int(min(max(math.ceil(1.1447 * (alpha * n) ** (1 / 3)), 1), n - 1))
+    S0 = np.zeros((int(good.sum()),) * 2)
+    S = S0.copy()
+    for r, J in blocks:
+        g = J * r[..., None]  # (T, M, d') score contributions
+        S0 += np.einsum("tki,tkj->ij", g, g)
+        for lag in range(1, min(L, g.shape[1] - 1) + 1):
+            c = np.einsum("tki,tkj->ij", g[:, :-lag], g[:, lag:])
+            S += (1 - lag / (L + 1)) * (c + c.T)
+    S += S0
+    A = cov_gn[np.ix_(good, good)]
+    var_hac = np.maximum(np.diag(A @ S @ A), np.diag(A @ S0 @ A))
+    inflation[good] = np.sqrt(np.maximum(var_hac / var_gn[good], 1.0))
+    D = np.where(good, inflation, 1.0)
+    return np.where(np.isfinite(cov_gn), cov_gn * D[:, None] * D[None, :], cov_gn), inflation
+
+
+def residual_series(likelihood) -> list[tuple[int, int]] | None:
+    """The (T, M) blocks of a likelihood's residual vector (one per video of a joint fit), or
+    None where it has none (:func:`robust_covariance`)."""
+    parts = getattr(likelihood, "likelihoods", None) or (likelihood,)
+    shapes = [tuple(getattr(lik, "obs").shape) for lik in parts if hasattr(lik, "obs")]
+    return shapes if len(shapes) == len(parts) and all(len(s) == 2 for s in shapes) else None
+
+
 #: Most Levenberg-Marquardt starts vmapped into one solve; more run as several calls of the same
 #: jitted solver, chunks of exactly this many starts (the last padded with copies of its last
 #: start, so one compiled shape serves every chunk). Why: on the MJX engine each LM step of S
@@ -260,10 +354,10 @@ def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None) -> tuple:
 
 
 def residual_jacobian(res_fn: Callable) -> Callable:
-    """Pure ``jac(z (d,), data) -> (R, d)``: the Jacobian of ``res_fn(z, data)`` at z
-    (``jacfwd``; with :func:`~galileo_jax.inference.problem.fd_jacobian_fn`'s residuals, the
-    finite-difference Jacobian)."""
-    return lambda z, data: jax.jacfwd(lambda zz: res_fn(zz, data))(z)
+    """Pure ``f(z (d,), data) -> (r (R,), jac (R, d))``: ``res_fn(z, data)`` and its Jacobian
+    at z (``jacfwd``; with :func:`~galileo_jax.inference.problem.fd_jacobian_fn`'s residuals,
+    the finite-difference Jacobian)."""
+    return lambda z, data: (res_fn(z, data), jax.jacfwd(lambda zz: res_fn(zz, data))(z))
 
 
 def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
@@ -397,8 +491,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     cost = np.where(np.isfinite(cost), cost, np.inf)
     best = int(np.argmin(cost))
     z_hat = z_end[best]
-    jac_fn = problem.jitted(("jacobian_fd", fd_step), residual_jacobian(res_fd))
-    jac = np.asarray(jac_fn(z_hat, problem.data), np.float64)
+    jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(res_fd))
+    r, jac = (np.asarray(a, np.float64) for a in jac_fn(z_hat, problem.data))
     cov_z = gauss_newton_covariance(jac)
     best_cost = float(cost[best])
     if polish_rounds > 0:
@@ -406,16 +500,26 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
                                  rounds=polish_rounds, points=polish_points)
         if cost_pol < best_cost:
             z_hat, best_cost = jnp.asarray(z_pol), cost_pol
-            jac = np.asarray(jac_fn(z_hat, problem.data), np.float64)
+            r, jac = (np.asarray(a, np.float64) for a in jac_fn(z_hat, problem.data))
             cov_z = gauss_newton_covariance(jac)
+    cov_z, inflation = widened(jac, r, problem.likelihood, cov_z)
     elapsed = time.perf_counter() - t0
 
     return grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, best_cost, theta0, z_end, cost, steps, ok,
-                       codes, best, jacobian, elapsed)
+                       codes, best, jacobian, elapsed, inflation)
+
+
+def widened(jac: np.ndarray, resid: np.ndarray, likelihood, cov_gn: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`robust_covariance` of a fit whose likelihood's residual layout is known
+    (:func:`residual_series`); else ``(cov_gn, None)``."""
+    series = residual_series(likelihood)
+    if series is None:
+        return cov_gn, None
+    return robust_covariance(jac, resid, series, cov_gn)
 
 
 def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, theta0, z_end, cost, steps, ok, codes,
-                best: int, jacobian: str, elapsed: float) -> GradResult:
+                best: int, jacobian: str, elapsed: float, inflation: np.ndarray | None = None) -> GradResult:
     """Assemble a :class:`GradResult` from one video's LM end points (shared by :func:`fit_grad`
     and :func:`~galileo_jax.inference.batch.fit_grad_batch`).
 
@@ -425,6 +529,7 @@ def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, the
         theta0: (S, d) starts in theta; z_end: (S, d) LM end points in z; cost, steps, ok,
             codes: (S,) per-start cost, LM steps, convergence flag and optimistix result code.
         best: index of the winning start; jacobian: "fd" or "ad"; elapsed: wall time in s.
+        inflation: (d,) :attr:`GradResult.inflation` (already applied to ``cov_z``), or None.
     """
     z_hat_np = np.asarray(z_hat, np.float64)
     g = np.asarray(space.dtheta_dz(jnp.asarray(z_hat_np)), np.float64)
@@ -442,7 +547,7 @@ def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, the
         starts_theta0=np.asarray(theta0, np.float64),
         starts_theta=np.asarray(space.from_unconstrained(jnp.asarray(z_end)), np.float64), starts_cost=cost,
         starts_iterations=np.asarray(steps), starts_converged=np.asarray(ok), jacobian=jacobian,
-        time_s=elapsed)
+        time_s=elapsed, inflation=None if inflation is None else np.asarray(inflation, np.float64))
 
 
 def polish(problem, key: jax.Array, z: np.ndarray, cost: float, cov_z: np.ndarray, *, rounds: int = 3,
@@ -541,7 +646,11 @@ def _expand(res: GradResult, sub) -> GradResult:
     interval = np.stack([theta, theta], axis=-1)
     interval[free] = res.interval90
     z = np.asarray(parent.to_unconstrained(jnp.asarray(theta)), np.float64)
-    return res._replace(names=parent.names, theta=theta, z=z, cov_z=square(res.cov_z),
+    inflation = None
+    if res.inflation is not None:
+        inflation = np.ones(dim)
+        inflation[free] = res.inflation
+    return res._replace(names=parent.names, theta=theta, z=z, cov_z=square(res.cov_z), inflation=inflation,
                         cov_theta=square(res.cov_theta), sd=np.sqrt(np.maximum(np.diag(square(res.cov_theta)), 0.0)),
                         interval90=interval, starts_theta0=sub.full_theta(res.starts_theta0),
                         starts_theta=sub.full_theta(res.starts_theta), fixed=tuple(sub.fixed))

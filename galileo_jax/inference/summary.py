@@ -182,6 +182,22 @@ def optima_warning(diagnostics: dict) -> str | None:
             "together), or the search missed a better optimum: compare with more --starts or --method mh")
 
 
+#: Widening factors at or below this are not mentioned in the console summary.
+WIDENING_NOTE_MIN = 1.2
+
+
+def widening_note(diagnostics: dict) -> str | None:
+    """One line naming the parameters whose grad intervals were widened for correlated
+    residuals (``interval_widening`` of :func:`summarize_grad`, by more than
+    :data:`WIDENING_NOTE_MIN`); None when none was."""
+    wide = {n: f for n, f in (diagnostics.get("interval_widening") or {}).items() if f > WIDENING_NOTE_MIN}
+    if not wide:
+        return None
+    shown = ", ".join(f"{n} x{f:.1f}" for n, f in sorted(wide.items(), key=lambda nf: -nf[1])[:5])
+    return (f"note: intervals widened for residuals correlated over many frames ({shown}; sandwich covariance): "
+            "the model misses something the video shows (tracking errors, a missing effect); see the profiles")
+
+
 def _known(value: float, **kw) -> dict:
     return _entry(mean=value, median=value, sd=0.0, interval90=[value, value], best=value, known=True, **kw)
 
@@ -325,7 +341,9 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     Gauss-Newton normal approximation in z mapped through the transform. A derived phi (one
     mass known) gets its SD by the delta method and interval estimate +- 1.645 sd. R-hat and
     ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s,
-    and ``competing_optima`` (:func:`competing_optima`).
+    ``competing_optima`` (:func:`competing_optima`) and ``interval_widening``: {name: factor}
+    by which each fitted parameter's Gauss-Newton SD (in z) was widened to the sandwich
+    estimate's (:func:`~galileo_jax.inference.grad.robust_covariance`; 1.0: not widened).
     """
     params = point_parameters(space, result.theta, result.sd, result.interval90, result.cov_theta,
                               getattr(result, "fixed", ()))
@@ -333,6 +351,11 @@ def summarize_grad(result, space: ParamSpace) -> dict:
                    "converged": bool(result.converged), "result": result.result, "jacobian": result.jacobian,
                    "n_starts": int(len(result.starts_cost)), "time_s": float(result.time_s),
                    "competing_optima": competing_optima(result, space, params)}
+    inflation = getattr(result, "inflation", None)
+    if inflation is not None:
+        held = set(getattr(result, "fixed", ()))
+        diagnostics["interval_widening"] = {n: round(float(f), 3) for n, f in zip(space.names, inflation)
+                                            if n not in held and np.isfinite(f)}
     return {"method": "grad", "parameters": params, "diagnostics": diagnostics}
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from galileo_jax.inference.summary import mixing_warning, optima_warning
+from galileo_jax.inference.summary import mixing_warning, optima_warning, widening_note
 from galileo_jax.pipeline import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
@@ -37,8 +37,7 @@ def _parameter_lines(parameters: dict) -> list[str]:
 
 
 def _optima_lines(diagnostics: dict) -> list[str]:
-    warning = optima_warning(diagnostics)
-    return [f"  {warning}"] if warning else []
+    return [f"  {line}" for line in (optima_warning(diagnostics), widening_note(diagnostics)) if line]
 
 
 def _rmse_lines(rmse: dict, indent: str = "    ") -> list[str]:
