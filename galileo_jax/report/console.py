@@ -36,7 +36,7 @@ def _parameter_lines(parameters: dict) -> list[str]:
     return lines + ([f"  {warning}"] if warning else [])
 
 
-def _optima_lines(diagnostics: dict) -> list[str]:
+def _interval_warning_lines(diagnostics: dict) -> list[str]:
     return [f"  {line}" for line in (optima_warning(diagnostics), widening_note(diagnostics)) if line]
 
 
@@ -52,7 +52,7 @@ def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str
     for j, (v, s, o) in enumerate(zip(fit.videos, fit.scenes, fit.observations)):
         lines.append(f"  video {j + 1}: {v.name} (scene {s.name}, {len(o.frame_times)} frames at {o.fps:.2f} fps)")
     lines.append("")
-    lines += _parameter_lines(fit.parameters) + _optima_lines(fit.diagnostics)
+    lines += _parameter_lines(fit.parameters) + _interval_warning_lines(fit.diagnostics)
     lines += ["", "  " + identifiability_statement(fit.scenes[0]), ""]
     lines.append("  fit quality per video (RMSE of observed - simulated velocity, m/s; log-likelihood):")
     for j, (r, ll) in enumerate(zip(fit.rmse, fit.video_loglik)):
@@ -100,7 +100,7 @@ def summary_text(fit: FitReport, elapsed: float | None = None) -> str:
         f"{obs.fps:.2f} fps, method {fit.method})",
         "",
     ]
-    lines += _parameter_lines(fit.parameters) + _optima_lines(fit.diagnostics)
+    lines += _parameter_lines(fit.parameters) + _interval_warning_lines(fit.diagnostics)
     lines += ["", "  " + identifiability_statement(fit.scene), ""]
     lines.append("  fit quality (RMSE of observed - simulated velocity, m/s; noise = tracking noise SD):")
     lines += _rmse_lines(fit.rmse)
