@@ -116,6 +116,10 @@ def fit_one(video: Path, method: str) -> dict:
         draws = rep.posterior.draws[n]
         rec[n] = {"estimate": rep.parameters[n]["estimate"], **truth_record(draws, truth[n])}
         rec[n]["error"] = abs(rec[n]["estimate"] - truth[n])
+        lo, hi = rep.parameters[n]["interval90"]  # the interval the summary reports (grad: profile-checked)
+        rec[n]["reported90"] = [lo, hi]
+        rec[n]["covered90_reported"] = bool(lo <= truth[n] <= hi)
+        rec[n]["interval_method"] = rep.parameters[n].get("interval_method")
     rec["rmse_over_noise"] = max(v["ratio"] for v in rep.rmse.values() if "ratio" in v)
     rec["adequate"] = bool((rep.adequacy or {}).get("adequate", True))
     rec["competing_optima"] = len(rep.diagnostics.get("competing_optima", []))
@@ -206,6 +210,18 @@ def tables(summary: dict, records: list[dict]) -> list[str]:
                      f"1.05 in {int((rhat <= 1.05).sum())}, at most 1.1 in {int((rhat <= 1.1).sum())} of {len(rhat)}, "
                      f"largest {rhat.max():.2f}")
         lines.append(line)
+    checked = [r for r in records if "error" not in r and any(r[n].get("interval_method") for n in NAMES)]
+    if checked:  # grad's reported intervals, checked against the profile likelihood (the draws stay Gauss-Newton)
+        lines += ["", "90% coverage of the intervals the summary reports, where grad checked them against the profile "
+                  "likelihood (the coverage above is that of the Gauss-Newton draws; k1 / k2 / phi, and how many "
+                  "intervals the profile widened):", ""]
+        for method in sorted({r["method"] for r in checked}):
+            for family in (*FAMILIES, "all"):
+                rows = [r for r in checked if r["method"] == method and (family == "all" or r["video"].startswith(family + "_"))]
+                if rows:
+                    cov = " / ".join(f"{np.mean([r[n]['covered90_reported'] for r in rows]):.2f}" for n in NAMES)
+                    wid = sum(r[n].get("interval_method") == "profile likelihood" for r in rows for n in NAMES)
+                    lines.append(f"- {method}, {family} ({len(rows)} videos): {cov}; widened {wid} of {3 * len(rows)}")
     failed = [r for r in records if "error" in r]
     if failed:  # one line per method and message (a CNN missing for a scene stops every video of it)
         groups: dict = {}

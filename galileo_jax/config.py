@@ -45,12 +45,14 @@ class SeedMHConfig(_Strict):
 
 
 class GradConfig(_Strict):
-    """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind."""
+    """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind, and whether each
+    interval is checked against the profile likelihood (:mod:`galileo_jax.inference.profile`)."""
 
     starts: int = Field(4, ge=1, le=256)
     screen: int = Field(256, ge=1, le=4096)
     max_steps: int = Field(100, ge=1)
     jacobian: Literal["fd", "ad"] = "fd"
+    profile: bool = True
 
 
 class CNNConfig(_Strict):

@@ -164,10 +164,10 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
         from galileo_jax.inference.grad import fit_grad
 
         if start is None:
-            res = fit_grad(problem, k_run, **grad_options(cfg))
+            res = fit_grad(problem, k_run, **grad_options(cfg), profile=cfg.grad.profile)
         else:
             res = fit_grad(problem, k_run, **grad_start_from_cnn(start, problem.space, cfg),
-                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)
+                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, profile=cfg.grad.profile)
         params, diag, theta, draws = grad_estimate(res, problem.space, k_sum, cfg)
         return params, {**diag, **cnn_diag}, theta, draws, gauss_newton_posterior(res, problem.space, k_sum)
     if method == "mh":
@@ -474,6 +474,10 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
             problems = batch_problems(scene, [tracked[j].observation for j in members],
                                       **problem_options(scene, cfg))
             fits = fit_grad_batch(problems, k_run, **grad_options(cfg))
+            if cfg.grad.profile:  # as a single fit does (one batched held solve per video)
+                from galileo_jax.inference.grad import with_profile
+
+                fits = [with_profile(res, problem, max_steps=cfg.grad.max_steps) for problem, res in zip(problems, fits)]
         except Exception as err:  # noqa: BLE001 - the batch failed: every video in it records why
             for j in members:
                 results[j] = GalileoError(str(err)) if isinstance(err, ValueError) else err

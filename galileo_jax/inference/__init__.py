@@ -8,7 +8,8 @@
 * :func:`run_mh` (mh.py): adaptive random-walk Metropolis-Hastings, many chains at once,
   BlackJAX-style kernel (:class:`RWState`, :class:`RWInfo`, :func:`build_kernel`).
 * :func:`run_seed_mh` (seed_mh.py): the seed's coin-toss sampler, as a baseline.
-* :func:`fit_grad` (grad.py): multi-start Levenberg-Marquardt with a Gauss-Newton uncertainty.
+* :func:`fit_grad` (grad.py): multi-start Levenberg-Marquardt with a Gauss-Newton uncertainty,
+  each interval checked against the profile likelihood (:func:`profile_check`, profile.py).
 * :func:`summarize_mh`, :func:`summarize_grad` (summary.py): one JSON-ready dict shape.
 
 Typical use::
@@ -26,9 +27,10 @@ from galileo_jax.inference.grad import GradResult, fit_grad
 from galileo_jax.inference.joint import JointProblem
 from galileo_jax.inference.mh import MHResult, RWInfo, RWState, build_kernel, random_walk, run_mh
 from galileo_jax.inference.problem import Problem, fd_jacobian_fn, simulated_observation
+from galileo_jax.inference.profile import ProfileCheck, profile_check
 from galileo_jax.inference.seed_mh import SeedResult, run_seed_mh
 from galileo_jax.inference.summary import summarize_grad, summarize_mh
 
-__all__ = ["Problem", "JointProblem", "FixedProblem", "fd_jacobian_fn", "simulated_observation", "run_mh", "MHResult", "RWState", "RWInfo",
+__all__ = ["Problem", "ProfileCheck", "profile_check", "JointProblem", "FixedProblem", "fd_jacobian_fn", "simulated_observation", "run_mh", "MHResult", "RWState", "RWInfo",
            "build_kernel", "random_walk", "run_seed_mh", "SeedResult", "fit_grad", "GradResult",
            "summarize_mh", "summarize_grad"]

@@ -61,6 +61,12 @@ coverage benchmark (``benchmarks/results/coverage.md``: 90% coverage 0.68 / 0.72
 truths of k1 / k2 / phi) the widening moves coverage by at most 0.04 (its ``grad-plain`` rows,
 the same fits unwidened): the floor keeps most videos' residuals below the noise, and the
 misses there are biases of many SDs, which no covariance estimate covers.
+
+Both covariances assume the log-likelihood is quadratic out to the interval's ends. With
+``profile=True`` (``fit``'s default, ``grad.profile``) each physical parameter's interval is
+checked against its profile likelihood (:mod:`galileo_jax.inference.profile`: held fits at the
+interval's ends, batched) and widened to the profile's 90% end on a side where the profile is
+flatter; the result says which interval each parameter got (:attr:`GradResult.profile`).
 """
 
 from __future__ import annotations
@@ -106,6 +112,9 @@ class GradResult(NamedTuple):
         fixed: names of the parameters held at given values (not fitted).
         inflation: (d,) factor by which each coordinate's Gauss-Newton SD was widened to the
             sandwich estimate's (:func:`robust_covariance`; 1 where it was not), or None.
+        profile: the profile-likelihood check of the intervals (:func:`profile_check`, as
+            :meth:`ProfileCheck.report` gives it), or None where it was not run. Where it
+            disagreed with the Gauss-Newton interval, ``interval90`` holds the profile's end.
     """
 
     names: tuple[str, ...]
@@ -129,6 +138,7 @@ class GradResult(NamedTuple):
     time_s: float
     fixed: tuple[str, ...] = ()
     inflation: np.ndarray | None = None
+    profile: dict | None = None
 
 
 #: Starting points of the release-time correction are drawn from this fraction of its range,
@@ -412,7 +422,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
              init: np.ndarray | None = None, fixed: dict[str, float] | None = None,
              jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
              max_steps: int = 40, polish_rounds: int = 3, polish_points: int = 64,
-             local_screen: float | np.ndarray | None = None) -> GradResult:
+             local_screen: float | np.ndarray | None = None, profile: bool = False) -> GradResult:
     """Multi-start Levenberg-Marquardt maximum-likelihood fit with a Gauss-Newton uncertainty.
 
     Arguments:
@@ -440,6 +450,10 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         local_screen: with ``init``, screen the starts within +-``local_screen`` (a fraction,
             or (d,) fractions, one per coordinate) of each range around ``init`` instead of
             over the whole prior box, effect parameters excepted (:func:`latin_hypercube_starts`).
+        profile: check each physical parameter's interval against its profile likelihood
+            (:func:`~galileo_jax.inference.profile.profile_check`); where they disagree the
+            profile's 90% end replaces the Gauss-Newton one (:attr:`GradResult.profile` says
+            which was used).
 
     Returns:
         :class:`GradResult`.
@@ -467,7 +481,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
             init = init[list(sub.free)]
         res = fit_grad(sub, key, n_starts=n_starts, n_screen=n_screen, init=init, jacobian=jacobian,
                        fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps, polish_rounds=polish_rounds,
-                       polish_points=polish_points, local_screen=local_screen)
+                       polish_points=polish_points, local_screen=local_screen, profile=profile)
         return _expand(res, sub)
     space = problem.space
     d = space.dim
@@ -509,10 +523,54 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
             r, jac = (np.asarray(a, np.float64) for a in jac_fn(z_hat, problem.data))
             cov_z = gauss_newton_covariance(jac)
     cov_z, inflation = widened(jac, r, problem.likelihood, cov_z)
-    elapsed = time.perf_counter() - t0
+    res = grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, best_cost, theta0, z_end, cost, steps, ok,
+                      codes, best, jacobian, 0.0, inflation)
+    if profile:
+        res = with_profile(res, problem, fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps)
+    return res._replace(time_s=time.perf_counter() - t0)
 
-    return grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, best_cost, theta0, z_end, cost, steps, ok,
-                       codes, best, jacobian, elapsed, inflation)
+
+#: Levenberg-Marquardt steps at most per held fit of the profile check (each starts at the
+#: Gauss-Newton conditional mean, near its optimum).
+PROFILE_MAX_STEPS = 20
+
+
+def with_profile(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4,
+                 atol: float = 1e-4, max_steps: int = PROFILE_MAX_STEPS) -> GradResult:
+    """``res`` (a fit of ``problem``, or one video's of a batch) with its physical parameters'
+    intervals checked against the profile likelihood
+    (:func:`~galileo_jax.inference.profile.profile_check`; held fits on the FD residuals with
+    step ``fd_step``, LM tolerances ``rtol``, ``atol``, at most ``max_steps`` (capped at
+    :data:`PROFILE_MAX_STEPS`) steps each): ``interval90`` takes the profile's end on each side
+    where the two disagree, and :attr:`GradResult.profile` the check's report. A result with
+    held parameters (``res.fixed``) is returned as it is (:func:`fit_grad` checks such a fit on
+    its sub-problem)."""
+    from galileo_jax.inference.profile import checked_coords, held_lm_solver, profile_check
+
+    if res.fixed:  # fit_grad checks a fit with held parameters on its sub-problem
+        return res
+    space = problem.space
+    infl = np.ones(space.dim) if res.inflation is None else np.asarray(res.inflation, np.float64)
+    with np.errstate(invalid="ignore"):
+        cov_gn = np.asarray(res.cov_z, np.float64) / np.outer(infl, infl)  # the Gauss-Newton covariance
+    coords = checked_coords(space, cov_gn)
+    if not coords:
+        return res
+    lm = (rtol, atol, min(int(max_steps), PROFILE_MAX_STEPS))
+    solve = problem.jitted(("lm_held", fd_step) + lm, held_lm_solver(problem.residual_fn("fd", fd_step), *lm))
+    check = profile_check(solve, problem.data, res.z, res.cost, cov_gn, infl, coords)
+    z = np.asarray(res.z, np.float64)
+
+    def to_theta(j, zj):
+        pts = np.repeat(z[None], len(zj), axis=0)
+        pts[:, j] = zj
+        return np.asarray(space.from_unconstrained(jnp.asarray(pts)), np.float64)[:, j]
+
+    interval = np.array(res.interval90, copy=True)
+    for row, j in enumerate(check.coords):
+        if check.disagrees[row].any():
+            interval[j] = np.where(check.disagrees[row], to_theta(int(j), check.interval_z[row]), interval[j])
+    return res._replace(interval90=interval, profile=check.report(space.names, to_theta, res.interval90))
 
 
 def widened(jac: np.ndarray, resid: np.ndarray, likelihood, cov_gn: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -628,10 +686,26 @@ def polish_many(loglik, key: jax.Array, z: np.ndarray, cost: np.ndarray, cov_z: 
 
 def gauss_newton_draws(res: GradResult, space, key: jax.Array, n: int) -> np.ndarray:
     """(n, d) draws of theta from the Gauss-Newton normal approximation N(z_hat, cov_z) of a fit
-    (the held coordinates of ``res.fixed`` stay at their values)."""
+    (the held coordinates of ``res.fixed`` stay at their values). Where the profile check
+    (:attr:`GradResult.profile`) widened a side of a coordinate's interval, that side of its
+    draws is stretched about z_hat (a split normal in z) so their 5% and 95% quantiles are the
+    reported interval's ends."""
     free = [j for j, name in enumerate(res.names) if name not in res.fixed]
     zf = jax.random.multivariate_normal(key, jnp.asarray(res.z[free]), jnp.asarray(res.cov_z[np.ix_(free, free)]), (n,))
-    theta_free = np.asarray(space.from_unconstrained(jnp.asarray(res.z)[None].repeat(n, 0).at[:, free].set(zf)))
+    z = np.array(jnp.asarray(res.z)[None].repeat(n, 0).at[:, free].set(zf), np.float64)
+    for name, entry in ((res.profile or {}).get("parameters") or {}).items():
+        if entry["method"] != "profile":
+            continue
+        j = res.names.index(name)
+        ends = np.full((2, len(res.names)), np.asarray(res.theta, np.float64))
+        ends[:, j] = entry["interval90_profile"]
+        z_ends = np.asarray(space.to_unconstrained(jnp.asarray(ends)), np.float64)[:, j]
+        z_ends = np.clip(z_ends, res.z[j] - 8.0, res.z[j] + 8.0)  # an end at a bound: as far as the check looked
+        z_gn = res.z[j] + Z90 * np.sqrt(max(float(res.cov_z[j, j]), 0.0)) * np.array([-1.0, 1.0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            stretch = np.nan_to_num((z_ends - res.z[j]) / (z_gn - res.z[j]), nan=1.0, posinf=1.0)
+        z[:, j] = res.z[j] + (z[:, j] - res.z[j]) * np.where(z[:, j] < res.z[j], stretch[0], stretch[1])
+    theta_free = np.asarray(space.from_unconstrained(jnp.asarray(z)))
     out = np.repeat(np.asarray(res.theta, np.float64)[None], n, axis=0)
     out[:, free] = theta_free[:, free]
     return out

@@ -198,6 +198,35 @@ def widening_note(diagnostics: dict) -> str | None:
             "the model misses something the video shows (tracking errors, a missing effect); see the profiles")
 
 
+def profile_note(diagnostics: dict) -> str | None:
+    """One line naming the parameters whose grad interval was taken from the profile likelihood
+    (``profile_check`` of :func:`summarize_grad`) and the Gauss-Newton interval it replaced, and
+    saying where the held fits found a higher likelihood than the fit's optimum; None when
+    neither happened."""
+    check = diagnostics.get("profile_check") or {}
+    parts = []
+    for name, e in (check.get("parameters") or {}).items():
+        if e["method"] != "profile":
+            continue
+        lo, hi = e["interval90_profile"]
+        open_ = " (not bounded by the data on one side)" if not all(e.get("bounded", [True, True])) else ""
+        g_lo, g_hi = e["interval90_gauss_newton"]
+        parts.append(f"{name} [{_fmt_num(lo)}, {_fmt_num(hi)}]{open_} instead of [{_fmt_num(g_lo)}, {_fmt_num(g_hi)}]")
+    lines = []
+    if parts:
+        lines.append("note: the log-likelihood is not quadratic out to the Gauss-Newton interval's ends; 90% intervals "
+                     "from the profile likelihood: " + "; ".join(parts))
+    if check.get("loglik_gain", 0.0) > 0.5:
+        lines.append(f"note: a fit with one parameter held found a log-likelihood {check['loglik_gain']:.1f} nats "
+                     "higher than the estimate's: the fit stopped short of the maximum; refit with more starts "
+                     "(grad.starts) or try --method mh")
+    return "\n  ".join(lines) or None
+
+
+def _fmt_num(x: float) -> str:
+    return f"{x:.3g}" if abs(x) < 1e-3 or abs(x) >= 1e3 else f"{x:.4f}".rstrip("0").rstrip(".")
+
+
 def _known(value: float, **kw) -> dict:
     return _entry(mean=value, median=value, sd=0.0, interval90=[value, value], best=value, known=True, **kw)
 
@@ -343,7 +372,10 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s,
     ``competing_optima`` (:func:`competing_optima`) and ``interval_widening``: {name: factor}
     by which each fitted parameter's Gauss-Newton SD (in z) was widened to the sandwich
-    estimate's (:func:`~galileo_jax.inference.grad.robust_covariance`; 1.0: not widened).
+    estimate's (:func:`~galileo_jax.inference.grad.robust_covariance`; 1.0: not widened). Where
+    the intervals were checked against the profile likelihood (:attr:`GradResult.profile`),
+    ``profile_check`` holds the check and each checked parameter its ``interval_method``
+    ("profile likelihood" where the profile's ends were reported, else "gauss-newton").
     """
     params = point_parameters(space, result.theta, result.sd, result.interval90, result.cov_theta,
                               getattr(result, "fixed", ()))
@@ -356,6 +388,13 @@ def summarize_grad(result, space: ParamSpace) -> dict:
         held = set(getattr(result, "fixed", ()))
         diagnostics["interval_widening"] = {n: round(float(f), 3) for n, f in zip(space.names, inflation)
                                             if n not in held and np.isfinite(f)}
+    profile = getattr(result, "profile", None)
+    if profile is not None:
+        diagnostics["profile_check"] = profile
+        for name, entry in profile["parameters"].items():
+            if name in params:
+                params[name]["interval_method"] = ("profile likelihood" if entry["method"] == "profile"
+                                                   else "gauss-newton")
     return {"method": "grad", "parameters": params, "diagnostics": diagnostics}
 
 

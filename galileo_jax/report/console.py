@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from galileo_jax.inference.summary import mixing_warning, optima_warning, widening_note
+from galileo_jax.inference.summary import mixing_warning, optima_warning, profile_note, widening_note
 from galileo_jax.pipeline import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
@@ -37,7 +37,8 @@ def _parameter_lines(parameters: dict) -> list[str]:
 
 
 def _interval_warning_lines(diagnostics: dict) -> list[str]:
-    return [f"  {line}" for line in (optima_warning(diagnostics), widening_note(diagnostics)) if line]
+    return [f"  {line}" for line in (optima_warning(diagnostics), widening_note(diagnostics),
+                                      profile_note(diagnostics)) if line]
 
 
 def _rmse_lines(rmse: dict, indent: str = "    ") -> list[str]:
