@@ -64,7 +64,7 @@ def test_a_skewed_profile_is_widened_where_flatter_and_matches_brute_force():
     end (wider than the profile's: the check never narrows), and the linear coordinate z1 is
     left alone. Through the FD Jacobian the fit uses (step 0.05 in z), with and without an
     inflation (the deviance is then scaled by it). With a weaker slope the flatter side is not
-    bounded by the data: its end is the prior's bound."""
+    bounded by the data: its end is carried far out, towards the prior's bound."""
     sigma = 0.25
     for slope, tolerance, bounded in ((0.35, 1.2, True), (0.2, PROFILE_TOLERANCE, False)):
         y = slope * X + 0.2 + sigma * np.random.default_rng(3).standard_normal(len(X))
@@ -89,7 +89,9 @@ def test_a_skewed_profile_is_widened_where_flatter_and_matches_brute_force():
             if bounded:
                 assert chk.bounded[0, 0] and abs((z[0] - chk.interval_z[0, 0]) - lower) < 0.03 * 2 * Z90 * sd
             else:
-                assert not chk.bounded[0, 0] and not np.isfinite(lower) and chk.interval_z[0, 0] == z[0] - 8.0
+                # not bounded by the data: the end is carried far out (to the search's limit, or
+                # extrapolated near it)
+                assert not np.isfinite(lower) and z[0] - chk.interval_z[0, 0] > 4 * Z90 * sd
             assert chk.loglik_gain < 1e-6
 
 
