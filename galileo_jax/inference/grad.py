@@ -376,23 +376,27 @@ def residual_jacobian(res_fn: Callable) -> Callable:
     return both
 
 
+def lm_no_worse(res_fn, solver, z_init, args, max_steps: int):
+    """Levenberg-Marquardt from ``z_init`` on ``res_fn(z, args)`` that never ends worse than it
+    started: on the rough cost surface an accepted LM step can (rarely) raise the cost, and a
+    refit that starts at the base model's optimum must not report less than the base model.
+    Returns ``(z, cost |r|^2 / 2, optimistix solution)`` (pure; vmappable)."""
+    sol = optx.least_squares(lambda z, a: res_fn(z, a), solver, z_init, args=args, max_steps=max_steps,
+                             throw=False, options={"jac": "fwd"})
+    cost_end = 0.5 * jnp.sum(res_fn(sol.value, args) ** 2)
+    cost_start = 0.5 * jnp.sum(res_fn(z_init, args) ** 2)
+    worse = ~(cost_end <= cost_start)
+    return jnp.where(worse, z_init, sol.value), jnp.where(worse, cost_start, cost_end), sol
+
+
 def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
     """Pure ``solve(z0s (S, d), data)``: vmapped Levenberg-Marquardt from S starts."""
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
 
     def solve_one(z_init, data):
-        sol = optx.least_squares(lambda z, args: res_fn(z, args), solver, z_init, args=data, max_steps=max_steps,
-                                 throw=False, options={"jac": "fwd"})
-        r = res_fn(sol.value, data)
-        cost_end = 0.5 * jnp.sum(r**2)
-        # Never end worse than the start: on the rough cost surface an accepted LM step can
-        # (rarely) raise the cost, and a refit that starts at the base model's optimum must
-        # not report less than the base model.
-        cost_start = 0.5 * jnp.sum(res_fn(z_init, data) ** 2)
-        worse = ~(cost_end <= cost_start)
-        z_out = jnp.where(worse, z_init, sol.value)
+        z_out, cost, sol = lm_no_worse(res_fn, solver, z_init, data, max_steps)
         ok = sol.result == optx.RESULTS.successful
-        return z_out, jnp.where(worse, cost_start, cost_end), sol.stats["num_steps"], ok, sol.result._value
+        return z_out, cost, sol.stats["num_steps"], ok, sol.result._value
 
     return jax.vmap(solve_one, in_axes=(0, None))
 

@@ -47,9 +47,11 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-#: The Gauss-Newton end of an interval stands where the profile's root deviance there lies
-#: within this factor of 1.645 (the interval is then at most ~1.5x too wide or too narrow on
-#: that side); a larger tolerance runs fewer searches.
+from galileo_jax.inference.grad import Z90, lm_no_worse
+
+#: A side of an interval is searched where the profile's root deviance at its Gauss-Newton end
+#: is below 1.645 / this factor (the interval is then more than ~1.5x too narrow there); a
+#: larger tolerance runs fewer searches.
 PROFILE_TOLERANCE = 1.5
 #: Secant rounds after the first check (each one batched solve of the sides still open).
 PROFILE_ROUNDS = 2
@@ -135,15 +137,8 @@ def held_lm_solver(res_fn: Callable, rtol: float, atol: float, max_steps: int) -
         def full(zf):
             return jnp.zeros(d, zf.dtype).at[src].set(zf).at[j].set(v)
 
-        def cost(zf):
-            return 0.5 * jnp.sum(res_fn(full(zf), data) ** 2)
-
-        zf0 = z_init[src]
-        sol = optx.least_squares(lambda zf, args: res_fn(full(zf), args), solver, zf0, args=data,
-                                 max_steps=max_steps, throw=False, options={"jac": "fwd"})
-        c0, c1 = cost(zf0), cost(sol.value)
-        worse = ~(c1 <= c0)
-        return full(jnp.where(worse, zf0, sol.value)), jnp.where(worse, c0, c1)
+        zf, cost, _ = lm_no_worse(lambda zf_, args: res_fn(full(zf_), args), solver, z_init[src], data, max_steps)
+        return full(zf), cost
 
     def solve_none(z_init, j, v, data):  # one coordinate: nothing left to optimise
         z = z_init.at[j].set(v)
@@ -178,8 +173,6 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
     Raises:
         ValueError: a coordinate in ``coords`` has no finite positive variance, or tolerance < 1.
     """
-    from galileo_jax.inference.grad import Z90
-
     t0 = time.perf_counter()
     z_hat = np.asarray(z_hat, np.float64)
     cov_gn = np.asarray(cov_gn, np.float64)
@@ -261,9 +254,8 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
                         float(cost_hat - best["cost"]), best["z"], searched, n_solves, time.perf_counter() - t0)
 
 
-def checked_coords(space, cov_gn: np.ndarray, fixed=()) -> list[int]:
-    """Coordinates :func:`profile_check` checks by default: those of :data:`CHECKED_KINDS`,
-    not held, with a finite positive Gauss-Newton variance."""
+def checked_coords(space, cov_gn: np.ndarray) -> list[int]:
+    """Coordinates :func:`profile_check` checks by default: those of :data:`CHECKED_KINDS` with
+    a finite positive Gauss-Newton variance."""
     var = np.diag(np.asarray(cov_gn, np.float64))
-    return [j for j, (name, kind) in enumerate(zip(space.names, space.kinds))
-            if kind in CHECKED_KINDS and name not in fixed and math.isfinite(var[j]) and var[j] > 0]
+    return [j for j, kind in enumerate(space.kinds) if kind in CHECKED_KINDS and math.isfinite(var[j]) and var[j] > 0]
