@@ -9,7 +9,8 @@
   BlackJAX-style kernel (:class:`RWState`, :class:`RWInfo`, :func:`build_kernel`).
 * :func:`run_seed_mh` (seed_mh.py): the seed's coin-toss sampler, as a baseline.
 * :func:`fit_grad` (grad.py): multi-start Levenberg-Marquardt with a Gauss-Newton uncertainty,
-  each interval checked against the profile likelihood (:func:`profile_check`, profile.py).
+  each interval checked against the profile likelihood (:func:`profile_check`, profile.py);
+  a fit that the check shows stopped short is fitted again from the better point.
 * :func:`summarize_mh`, :func:`summarize_grad` (summary.py): one JSON-ready dict shape.
 
 Typical use::

@@ -537,10 +537,14 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
 #: Levenberg-Marquardt steps at most per held fit of the profile check (each starts at the
 #: Gauss-Newton conditional mean, near its optimum).
 PROFILE_MAX_STEPS = 20
+#: A held fit of the profile check that ends this far (nats) above the fit's own maximum of the
+#: log-likelihood shows that the fit stopped short: :func:`with_profile` fits again from that
+#: point (a deviance of 1, a shift of about one standard deviation: enough to move an interval).
+PROFILE_REFIT_GAIN = 0.5
 
 
 def with_profile(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4,
-                 atol: float = 1e-4, max_steps: int = PROFILE_MAX_STEPS) -> GradResult:
+                 atol: float = 1e-4, max_steps: int = PROFILE_MAX_STEPS, refits: int = 1) -> GradResult:
     """``res`` (a fit of ``problem``, or one video's of a batch) with its physical parameters'
     intervals checked against the profile likelihood
     (:func:`~galileo_jax.inference.profile.profile_check`; held fits on the FD residuals with
@@ -548,7 +552,13 @@ def with_profile(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, 
     :data:`PROFILE_MAX_STEPS`) steps each): ``interval90`` takes the profile's end on each side
     where the two disagree, and :attr:`GradResult.profile` the check's report. A result with
     held parameters (``res.fixed``) is returned as it is (:func:`fit_grad` checks such a fit on
-    its sub-problem)."""
+    its sub-problem).
+
+    Where a held fit ends more than :data:`PROFILE_REFIT_GAIN` nats above the fit's maximum,
+    the fit had stopped short: up to ``refits`` times, Levenberg-Marquardt (FD Jacobian, at most
+    ``max_steps`` steps) fits all parameters again from that point (:func:`refit_from`), and the
+    new optimum is checked in turn; the report's ``refitted_from_gain`` lists the gains that
+    led to a refit."""
     from galileo_jax.inference.profile import checked_coords, held_lm_solver, profile_check
 
     if res.fixed:  # fit_grad checks a fit with held parameters on its sub-problem
@@ -563,6 +573,14 @@ def with_profile(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, 
     lm = (rtol, atol, min(int(max_steps), PROFILE_MAX_STEPS))
     solve = problem.jitted(("lm_held", fd_step) + lm, held_lm_solver(problem.residual_fn("fd", fd_step), *lm))
     check = profile_check(solve, problem.data, res.z, res.cost, cov_gn, infl, coords)
+    if check.loglik_gain > PROFILE_REFIT_GAIN and refits > 0:
+        better = refit_from(res, problem, check.best_z, fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps)
+        if better is not None:
+            out = with_profile(better, problem, fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps,
+                               refits=refits - 1)
+            if out.profile is not None:
+                out.profile["refitted_from_gain"] = [float(check.loglik_gain)] + out.profile.get("refitted_from_gain", [])
+            return out
     z = np.asarray(res.z, np.float64)
 
     def to_theta(j, zj):
@@ -575,6 +593,35 @@ def with_profile(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, 
         if check.disagrees[row].any():
             interval[j] = np.where(check.disagrees[row], to_theta(int(j), check.interval_z[row]), interval[j])
     return res._replace(interval90=interval, profile=check.report(space.names, to_theta, res.interval90))
+
+
+def refit_from(res: GradResult, problem, z_start: np.ndarray, *, fd_step: float = DEFAULT_FD_STEP,
+               rtol: float = 1e-4, atol: float = 1e-4, max_steps: int = 40) -> GradResult | None:
+    """``res`` fitted again by Levenberg-Marquardt (FD Jacobian with step ``fd_step``,
+    tolerances ``rtol``, ``atol``, at most ``max_steps`` steps) from ``z_start`` ((d,) in z; a
+    better point met after the fit, e.g. by the profile check's held fits), with a new
+    Gauss-Newton (and sandwich) covariance; the start is added to the result's starts. None
+    where it does not end below ``res.cost`` (LM never ends above its start's cost)."""
+    space = problem.space
+    res_fd = problem.residual_fn("fd", fd_step)
+    solve = problem.jitted(("lm", "fd", fd_step, rtol, atol, max_steps), _lm_solver(res_fd, rtol, atol, max_steps))
+    z_end, cost, steps, ok, codes = solve_starts(solve, jnp.asarray(z_start, jnp.float64)[None], problem.data)
+    cost = float(np.asarray(cost, np.float64)[0])
+    if not (np.isfinite(cost) and cost < res.cost):
+        return None
+    z_hat = np.asarray(z_end, np.float64)[0]
+    jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(res_fd))
+    r, jac = (np.asarray(a, np.float64) for a in jac_fn(jnp.asarray(z_hat), problem.data))
+    cov_z, inflation = widened(jac, r, problem.likelihood, gauss_newton_covariance(jac))
+    theta_start = np.asarray(space.from_unconstrained(jnp.asarray(z_start, jnp.float64)), np.float64)
+    z_all = np.concatenate([np.asarray(space.to_unconstrained(jnp.asarray(res.starts_theta)), np.float64), z_end])
+    n = len(res.starts_cost)
+    codes_all = np.concatenate([np.zeros(n, int), np.asarray(codes).reshape(1)])  # only the best's code is read
+    return grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, cost,
+                       np.concatenate([res.starts_theta0, theta_start[None]]), z_all,
+                       np.append(res.starts_cost, cost), np.append(res.starts_iterations, np.asarray(steps)[0]),
+                       np.append(res.starts_converged, np.asarray(ok)[0]), codes_all, n, res.jacobian, res.time_s,
+                       inflation)
 
 
 def widened(jac: np.ndarray, resid: np.ndarray, likelihood, cov_gn: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

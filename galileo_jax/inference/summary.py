@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.inference.grad import PROFILE_REFIT_GAIN
 from galileo_jax.observation import trace_names
 from galileo_jax.params import ParamSpace
 
@@ -201,7 +202,8 @@ def widening_note(diagnostics: dict) -> str | None:
 def profile_note(diagnostics: dict) -> str | None:
     """One line naming the parameters whose grad interval was taken from the profile likelihood
     (``profile_check`` of :func:`summarize_grad`) and the Gauss-Newton interval it replaced, and
-    saying where the held fits found a higher likelihood than the fit's optimum; None when
+    saying where the held fits found a higher likelihood than the fit's optimum (and grad was
+    fitted again from there, or still stopped short); None when
     neither happened."""
     check = diagnostics.get("profile_check") or {}
     parts = []
@@ -216,7 +218,10 @@ def profile_note(diagnostics: dict) -> str | None:
     if parts:
         lines.append("note: the log-likelihood is not quadratic out to the Gauss-Newton interval's ends; 90% intervals "
                      "from the profile likelihood: " + "; ".join(parts))
-    if check.get("loglik_gain", 0.0) > 0.5:
+    for gain in check.get("refitted_from_gain", []):
+        lines.append(f"note: a fit with one parameter held found a log-likelihood {gain:.1f} nats higher than the "
+                     "first estimate's: grad had stopped short of the maximum and was fitted again from there")
+    if check.get("loglik_gain", 0.0) > PROFILE_REFIT_GAIN:
         lines.append(f"note: a fit with one parameter held found a log-likelihood {check['loglik_gain']:.1f} nats "
                      "higher than the estimate's: the fit stopped short of the maximum; refit with more starts "
                      "(grad.starts) or try --method mh")
