@@ -490,7 +490,6 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     space = problem.space
     d = space.dim
     res_fn = problem.residual_fn(jacobian, fd_step)
-    res_fd = problem.residual_fn("fd", fd_step)
     if n_starts < 0 or (n_starts == 0 and init is None):
         raise ValueError(f"need at least one start: n_starts = {n_starts}, init = {init}")
     if n_screen < n_starts:
@@ -515,17 +514,14 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     cost = np.where(np.isfinite(cost), cost, np.inf)
     best = int(np.argmin(cost))
     z_hat = z_end[best]
-    jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(res_fd))
-    r, jac = (np.asarray(a, np.float64) for a in jac_fn(z_hat, problem.data))
-    cov_z = gauss_newton_covariance(jac)
+    r, jac, cov_z = _linearised(problem, z_hat, fd_step)
     best_cost = float(cost[best])
     if polish_rounds > 0:
         z_pol, cost_pol = polish(problem, jax.random.fold_in(key, 7), np.asarray(z_hat, np.float64), best_cost, cov_z,
                                  rounds=polish_rounds, points=polish_points)
         if cost_pol < best_cost:
             z_hat, best_cost = jnp.asarray(z_pol), cost_pol
-            r, jac = (np.asarray(a, np.float64) for a in jac_fn(z_hat, problem.data))
-            cov_z = gauss_newton_covariance(jac)
+            r, jac, cov_z = _linearised(problem, z_hat, fd_step)
     cov_z, inflation = widened(jac, r, problem.likelihood, cov_z)
     res = grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, best_cost, theta0, z_end, cost, steps, ok,
                       codes, best, jacobian, 0.0, inflation)
@@ -610,9 +606,8 @@ def refit_from(res: GradResult, problem, z_start: np.ndarray, *, fd_step: float 
     if not (np.isfinite(cost) and cost < res.cost):
         return None
     z_hat = np.asarray(z_end, np.float64)[0]
-    jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(res_fd))
-    r, jac = (np.asarray(a, np.float64) for a in jac_fn(jnp.asarray(z_hat), problem.data))
-    cov_z, inflation = widened(jac, r, problem.likelihood, gauss_newton_covariance(jac))
+    r, jac, cov_gn = _linearised(problem, z_hat, fd_step)
+    cov_z, inflation = widened(jac, r, problem.likelihood, cov_gn)
     theta_start = np.asarray(space.from_unconstrained(jnp.asarray(z_start, jnp.float64)), np.float64)
     z_all = np.concatenate([np.asarray(space.to_unconstrained(jnp.asarray(res.starts_theta)), np.float64), z_end])
     n = len(res.starts_cost)
@@ -622,6 +617,15 @@ def refit_from(res: GradResult, problem, z_start: np.ndarray, *, fd_step: float 
                        np.append(res.starts_cost, cost), np.append(res.starts_iterations, np.asarray(steps)[0]),
                        np.append(res.starts_converged, np.asarray(ok)[0]), codes_all, n, res.jacobian, res.time_s,
                        inflation)
+
+
+def _linearised(problem, z, fd_step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At ``z`` ((d,) in z): the standardised residuals (R,), their finite-difference Jacobian
+    (R, d) (step ``fd_step``; one jitted program per problem structure) and its
+    :func:`gauss_newton_covariance` (d, d)."""
+    jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(problem.residual_fn("fd", fd_step)))
+    r, jac = (np.asarray(a, np.float64) for a in jac_fn(jnp.asarray(z), problem.data))
+    return r, jac, gauss_newton_covariance(jac)
 
 
 def widened(jac: np.ndarray, resid: np.ndarray, likelihood, cov_gn: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -741,6 +745,8 @@ def gauss_newton_draws(res: GradResult, space, key: jax.Array, n: int) -> np.nda
     (:attr:`GradResult.profile`) widened a side of a coordinate's interval, that side of its
     draws is stretched about z_hat (a split normal in z) so their 5% and 95% quantiles are the
     reported interval's ends."""
+    from galileo_jax.inference.profile import MAX_Z_DISTANCE
+
     free = [j for j, name in enumerate(res.names) if name not in res.fixed]
     zf = jax.random.multivariate_normal(key, jnp.asarray(res.z[free]), jnp.asarray(res.cov_z[np.ix_(free, free)]), (n,))
     z = np.array(jnp.asarray(res.z)[None].repeat(n, 0).at[:, free].set(zf), np.float64)
@@ -751,7 +757,8 @@ def gauss_newton_draws(res: GradResult, space, key: jax.Array, n: int) -> np.nda
         ends = np.full((2, len(res.names)), np.asarray(res.theta, np.float64))
         ends[:, j] = entry["interval90_profile"]
         z_ends = np.asarray(space.to_unconstrained(jnp.asarray(ends)), np.float64)[:, j]
-        z_ends = np.clip(z_ends, res.z[j] - 8.0, res.z[j] + 8.0)  # an end at a bound: as far as the check looked
+        # an end at a bound: as far as the check looked
+        z_ends = np.clip(z_ends, res.z[j] - MAX_Z_DISTANCE, res.z[j] + MAX_Z_DISTANCE)
         z_gn = res.z[j] + Z90 * np.sqrt(max(float(res.cov_z[j, j]), 0.0)) * np.array([-1.0, 1.0])
         with np.errstate(divide="ignore", invalid="ignore"):
             stretch = np.nan_to_num((z_ends - res.z[j]) / (z_gn - res.z[j]), nan=1.0, posinf=1.0)
