@@ -568,6 +568,52 @@ def test_auto_falls_back_to_a_colour_track_that_lasts_longer(monkeypatch):
         track.track_scene(frames, np.stack([px[0], px[0] + 60]), scene, calib)
 
 
+def test_plain_object_whose_colour_track_was_lost_keeps_klt_only_on_probation(monkeypatch):
+    """``tracker: auto`` on objects without texture whose colour tracks are lost at frame 40
+    (a collision of look-alikes, heavy blur). KLT follows object 1 on probation, and its track
+    is kept only where it agreed with the colour track before the loss and object 2's colour
+    track goes on (a KLT track that moved onto object 2 is caught only where object 2 is
+    measured). Else, or where KLT loses it later, object 1 keeps its colour track, measured up
+    to frame 40, not after."""
+    import galileo_jax.observe.track as track
+    from galileo_jax.calibration import calibration
+    from galileo_jax.errors import TrackingError
+
+    scene = _scene()
+    N = 50
+    px = np.stack([np.linspace(100.0, 300.0, N), np.full(N, 120.0)], axis=1)
+    frames = np.zeros((N, 270, 480, 3), np.uint8)
+    jitter = np.random.default_rng(0).normal(0.0, 3.0, (N, 2))
+
+    def run(lost, klt_px):
+        monkeypatch.setattr(track, "_colour_tracks", lambda *a, **k: {
+            i: (px + 60 * i, np.arange(N) < (lost[i] if lost[i] >= 0 else N),
+                (np.arange(N) < (lost[i] if lost[i] >= 0 else N)).astype(float), lost[i], 0) for i in range(2)})
+
+        def klt(frames, start, windows, **kw):
+            n, m = len(start), len(frames)
+            return track.Tracks(np.repeat(klt_px[:m, None], n, axis=1), np.ones((m, n), bool),
+                                np.full((m, n), 10), np.ones((m, n)))
+
+        if klt_px is not None:
+            monkeypatch.setattr(track, "track_objects", klt)
+        return track.track_scene(frames, np.stack([px[0], px[0] + 60]), scene, calibration(scene.camera))
+
+    monkeypatch.setattr(track, "has_texture", lambda *a: False)
+    out = run((40, -1), px)  # agrees before the loss, object 2 measured throughout: KLT kept
+    assert out.methods == ("features", "colour") and out.tracks.valid[40:, 0].all()
+    for lost, klt_px in (((40, 40), px), ((40, -1), px + jitter), ((40, -1), None)):
+        # object 2 lost too; KLT disagrees; KLT loses object 1 at frame 45 (no error: the colour track stands)
+        if klt_px is None:
+            def klt_lost(frames, start, windows, **kw):
+                raise TrackingError("object 1 track lost at frame 45: only 0 features still follow it",
+                                    object_index=0, frame=45)
+            monkeypatch.setattr(track, "track_objects", klt_lost)
+        out = run(lost, klt_px)
+        assert out.methods[0] == "colour", (lost, out.methods)
+        assert out.tracks.valid[:40, 0].all() and not out.tracks.valid[40:, 0].any()
+
+
 def test_silhouette_found_near_a_rough_guess():
     """The motion detector's guess at a small plain object in motion can be more than half
     an object off: by default no silhouette is taken that far away (None); with a ``reach``

@@ -1297,7 +1297,8 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
             inside the image, or "hold" (marked invalid).
         first_frame: video frame number of ``frames[0]`` (for error messages).
         measure_frames: frames to measure in passes (2) and (3) (default all; the others keep
-            the rough track, quality 0): a caller that needs only a few saves the time.
+            the rough track, quality 0): a caller that needs only a few saves the time (and
+            gets one measurement pass, on the background of the rough track).
         path_tilts: optional image tilts (rad) of the straight segments of the objects' path
             (ramp and floor, :func:`~galileo_jax.observe.tracks.path_tilts`): where a match
             gets worse, the rough pass also tries each object turned onto each of them,
@@ -1345,10 +1346,13 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     # start look at the start pixel, and drifts where the look changes): the objects are
     # measured once on a background that leaves out generous footprints along it, then again
     # on one that leaves out their footprints along that first measurement (measured: the
-    # second pass halves the error where the first background had to be filled in).
+    # second pass halves the error where the first background had to be filled in). A caller
+    # that measures only a few frames (``measure_frames``: the object finder, near an object's
+    # start) gets the first pass alone.
     px, look_frame = rough, np.full(n, -1)
     bg = None
-    for grow_extra in (0.5 * max(max(h) for h in halves), 0.0):
+    grows = (0.5 * max(max(h) for h in halves), 0.0)
+    for grow_extra in grows if measure_frames is None else grows[:1]:
         bg = colour_background(frames, _covered(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
                                region=region, median=plain if bg is None else bg.median)
         looks = []

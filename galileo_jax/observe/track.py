@@ -10,13 +10,22 @@
 
 ``tracker: auto`` (the scene's default) picks ``outline`` for spheres; for the others it first
 follows the object by its colour, then looks at the object in the clean frame the colour
-tracker learned it from: with texture inside it (:func:`has_texture`), or if its colour track
-was lost, KLT follows it too (and if KLT cannot, the colour track is kept, with the frames
-it could not measure left out) and
+tracker learned it from: with texture inside it (:func:`has_texture`), KLT follows it too (and
+if KLT cannot, the colour track is kept, with the frames it could not measure left out) and
 the two tracks are compared (:func:`_cross_check`): where they agree, the steadier one is kept
 (frames in which they disagree by more than :data:`CROSS_CHECK_PX` are dropped from a kept KLT
-track); where they do not, KLT is kept. Without texture, the colour track is the answer. An object whose
-colour does not stand out from the background, or whose colour track is lost, goes to KLT.
+track); where they do not, KLT is kept. Without texture, the colour track is the answer. Where
+that was lost (a collision with a look-alike, heavy blur), KLT follows the object too, on
+probation: its track is kept only where it agrees with the colour track before the loss
+(:data:`CROSS_CHECK_AGREE_PX`) and the other objects' colour tracks were not lost (where they
+are measured, the cross-check catches a KLT track that moved onto one of them); else the colour
+track is, its frames from the loss on left out of
+the fit (counted in ``result.json``'s tracking summary,
+:meth:`~galileo_jax.observation.TrackingInfo.counts`). KLT on a plain object follows a few
+corners of its outline, which may slide along the scenery or move onto a look-alike it collides
+with (on the tracking videos such tracks ran 30 px off before the loss and 650 px after it, or
+followed the look-alike after a collision that both colour tracks lost, unflagged). An object whose colour does not stand out from the background, or is not
+measured in its start frame, goes to KLT.
 """
 
 from __future__ import annotations
@@ -154,14 +163,18 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     k_colour, px_colour = (start_frame, start) if colour_start is None else (colour_start[0], colour_start[1])
     colour = _colour_tracks(frames, np.asarray(px_colour, float).reshape(-1, 2), wins, methods, int(k_colour), fps,
                             path_tilts(scene, calib))
+    on_probation: set[int] = set()
     for i in range(n):
         if methods[i] == "auto":
             k = int(colour[i][4]) if i in colour else -1
             # the colour track must also measure the start frame, where it anchors the track
             at_start = i in colour and bool(colour[i][1][start_frame])
-            plain = at_start and colour[i][3] < 0 and k >= 0 and not has_texture(
+            plain = at_start and k >= 0 and not has_texture(
                 frames[k], colour[i][0][k], wins[i].half,
                 wins[i].angle if k <= start_frame else _tilt(colour[i][0], k, wins[i].angle))
+            if plain and colour[i][3] >= 0:  # its colour track was lost: KLT on probation
+                on_probation.add(i)
+                plain = False
             methods[i] = "colour" if plain else "features"
     kw = dict(background=background, fps=fps, progress=progress, start_frame=start_frame)
     klt = [i for i in range(n) if methods[i] == "features"]
@@ -184,7 +197,8 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
                                     "film it against a background of another colour", object_index=i,
                                     at_start=True) from None
             if i is None or scene.objects[i].tracker != "auto" or i not in colour or \
-                    (colour_lost >= 0 and not err.at_start and (err.frame is None or colour_lost <= err.frame)):
+                    (colour_lost >= 0 and not err.at_start and (err.frame is None or colour_lost <= err.frame)
+                     and i not in on_probation):  # a plain object keeps its colour track up to its loss
                 raise _in_scene(err, klt) from None
             methods[i] = "colour"
             klt.remove(i)
@@ -206,6 +220,17 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     downhill = [path_direction(scene, calib, i) for i in range(n)]
     tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame,  # may switch to "colour"
                                           _pair_gaps(wins), scenery=(frames, background, wins))
+    for i in on_probation:  # a plain object's KLT track must agree with its colour track before its loss,
+        # and the others' colour tracks must go on after it (a KLT track that moved onto one of them
+        # is caught by the cross-check only where they are measured)
+        others_lost = any(j != i and (j not in colour or colour[j][3] >= 0) for j in range(n))
+        if methods[i] == "features" and (others_lost or not agree[i] <= CROSS_CHECK_AGREE_PX):
+            px_c, valid_c, q_c = colour[i][:3]
+            methods[i] = "colour"
+            fields = [np.array(f, copy=True) for f in tracks]
+            for f, v in zip(fields, (px_c, valid_c, valid_c.astype(int), q_c)):
+                f[:, i] = v
+            tracks = Tracks(*fields)
     cut = [i for i in range(n) if methods[i] != "outline"]
     return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
 
