@@ -16,16 +16,15 @@ the two tracks are compared (:func:`_cross_check`): where they agree, the steadi
 (frames in which they disagree by more than :data:`CROSS_CHECK_PX` are dropped from a kept KLT
 track); where they do not, KLT is kept. Without texture, the colour track is the answer. Where
 that was lost (a collision with a look-alike, heavy blur), KLT follows the object too, on
-probation: its track is kept only where it agrees with the colour track before the loss
-(:data:`CROSS_CHECK_AGREE_PX`) and the other objects' colour tracks were not lost (where they
-are measured, the cross-check catches a KLT track that moved onto one of them); else the colour
-track is, its frames from the loss on left out of
-the fit (counted in ``result.json``'s tracking summary,
+probation (:func:`_cross_check`): its track is kept only where it agrees with the colour track
+before the loss and the other objects' colour tracks were not lost; else the colour track is,
+its frames from the loss on left out of the fit (counted in ``result.json``'s tracking summary,
 :meth:`~galileo_jax.observation.TrackingInfo.counts`). KLT on a plain object follows a few
 corners of its outline, which may slide along the scenery or move onto a look-alike it collides
 with (on the tracking videos such tracks ran 30 px off before the loss and 650 px after it, or
-followed the look-alike after a collision that both colour tracks lost, unflagged). An object whose colour does not stand out from the background, or is not
-measured in its start frame, goes to KLT.
+followed the look-alike after a collision that both colour tracks lost, unflagged). An object
+whose colour does not stand out from the background, or is not measured in its start frame,
+goes to KLT.
 """
 
 from __future__ import annotations
@@ -219,18 +218,8 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     tracks = Tracks(*(np.stack([parts[i][m] for i in range(n)], axis=1) for m in range(4)))
     downhill = [path_direction(scene, calib, i) for i in range(n)]
     tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame,  # may switch to "colour"
-                                          _pair_gaps(wins), scenery=(frames, background, wins))
-    for i in on_probation:  # a plain object's KLT track must agree with its colour track before its loss,
-        # and the others' colour tracks must go on after it (a KLT track that moved onto one of them
-        # is caught by the cross-check only where they are measured)
-        others_lost = any(j != i and (j not in colour or colour[j][3] >= 0) for j in range(n))
-        if methods[i] == "features" and (others_lost or not agree[i] <= CROSS_CHECK_AGREE_PX):
-            px_c, valid_c, q_c = colour[i][:3]
-            methods[i] = "colour"
-            fields = [np.array(f, copy=True) for f in tracks]
-            for f, v in zip(fields, (px_c, valid_c, valid_c.astype(int), q_c)):
-                f[:, i] = v
-            tracks = Tracks(*fields)
+                                          _pair_gaps(wins), scenery=(frames, background, wins),
+                                          probation=on_probation)
     cut = [i for i in range(n) if methods[i] != "outline"]
     return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
 
@@ -426,7 +415,7 @@ def _on_scenery(frames: np.ndarray, background: np.ndarray, tracks: list, frames
 
 
 def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=None, k0: int = 0, gaps=None,
-                 scenery=None) -> tuple[Tracks, np.ndarray, np.ndarray]:
+                 scenery=None, probation=()) -> tuple[Tracks, np.ndarray, np.ndarray]:
     """Compare each KLT-tracked object with its colour track where both measured well
     (colour quality >= 0.9), after removing the offset between the points the two measure
     (:func:`_offset_residuals`: affine in the image position; the motion is what must agree).
@@ -452,6 +441,12 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
     more precise than by a few features, under motion blur and perspective); else the KLT
     frames farther than :data:`CROSS_CHECK_PX` from it are dropped (invalid, quality 0).
     ``methods`` is updated in place.
+
+    Objects in ``probation`` (plain objects whose colour track was lost, followed by KLT after
+    it) keep their KLT track only where it agreed with the colour track (median distance at
+    most :data:`CROSS_CHECK_AGREE_PX`) and no other object's colour track was lost: only where
+    the others are measured can a KLT track that moved onto one of them be caught. Else the
+    colour track replaces it, its frames from the loss on unmeasured.
 
     Returns:
         the tracks, (n,) median distances (px; NaN where not compared), (n,) frames dropped.
@@ -507,6 +502,10 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
         bad = both & (d > CROSS_CHECK_PX)
         dropped[i] += int(bad.sum())
         valid[bad, i], quality[bad, i] = False, 0.0
+    for i in probation:  # KLT kept only where it agreed before the colour track was lost and the others go on
+        others_lost = any(j != i and (j not in colour or colour[j][3] >= 0) for j in range(n))
+        if methods[i] == "features" and (others_lost or not agree[i] <= CROSS_CHECK_AGREE_PX):
+            take_colour(i, *colour[i][:3])
     return Tracks(px, valid, count, quality), agree, dropped
 
 
