@@ -251,8 +251,10 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
     truth = PhysParams(jnp.array([0.5]), jnp.array([0.15]), jnp.array([3.0]))
     obs = simulated_observation(scene, truth, duration=1.5, position_sd=1e-3, effects=("test_cubic_drag",), seed=1)
     # linear drag (joint damping: the C engine on a CPU) competes with the user's force law (MJX only)
+    # short searches (the test checks that they run and only raise log L, not how far they get)
     settings = DiagnoseSettings(candidates=("test_cubic_drag", "linear_drag"), refits=2, base_starts=2,
-                                base_screen=32, max_steps=60)
+                                base_screen=32, max_steps=60, refit_search=8, winner_search=4, search_popsize=16,
+                                search_popsize_c=16, search_generations_c=8)
     diag = diagnose(scene, obs, settings)
     d = diag.decision
     assert d["missing_effects"] == ["test_cubic_drag"], d["message"]

@@ -62,7 +62,7 @@ def joint(problems):
 
 @pytest.fixture(scope="module")
 def joint_fit(joint):
-    return fit_grad(joint, jax.random.key(0), n_starts=1, n_screen=8, max_steps=10)
+    return fit_grad(joint, jax.random.key(0), n_starts=1, n_screen=8, max_steps=10, polish_rounds=0)
 
 
 @pytest.mark.slow
@@ -146,7 +146,7 @@ def test_rolling_joint_fit_finds_mu_and_beats_sliding():
     block slide; LM could gain at most the curvature over 0.005 (tens of nats) on it, far
     below the ~800-nat gap asserted against."""
     roll = JointProblem(_problems(ROLL_ANGLES, MU, rolling=True, fit_effects=("rolling",)))
-    r_roll = fit_grad(roll, jax.random.key(1), n_starts=1, n_screen=8, max_steps=10)
+    r_roll = fit_grad(roll, jax.random.key(1), n_starts=1, n_screen=8, max_steps=10, polish_rounds=0)
     assert abs(r_roll.theta[0] - MU) < 0.01
     slide = JointProblem([Problem(p.scene, p.observation) for p in roll.problems])
     grid = jnp.linspace(0.02, 0.6, 59)[:, None]
