@@ -269,7 +269,7 @@ def test_colliding_look_alikes_keep_their_order():
     """Two objects on one ramp cannot pass through each other: the rough pass's joint choice
     keeps their order along the line of their previous positions even where the swapped pair
     matches better (look-alikes colliding), and takes the cheaper pair when order allows."""
-    from galileo_jax.observe.matte import _choose
+    from galileo_jax.observe.rough import _choose
 
     halves = [np.array([20.0, 20.0]), np.array([20.0, 20.0])]
     previous = {0: np.array([722.0, 374.0]), 1: np.array([777.0, 374.0])}
@@ -318,11 +318,11 @@ def test_rough_pass_follows_an_object_pushed_by_its_look_alike():
     more than a miss allows for a free object, but the rough pass allows twice that for an
     object touching another and keeps following it, to within half its size (before, its
     track stayed behind: on a perspective render 20 px off after the impact)."""
-    from galileo_jax.observe.matte import _rough_pass
+    from galileo_jax.observe.rough import rough_pass
 
     frames, truth = _pushed_pair()
     halves = [np.array([10.0, 10.0])] * 2
-    px, _, _, lost = _rough_pass(frames, truth[0], halves, np.zeros(2), 0, 1, 30.0, 0, "hold")
+    px, _, _, lost = rough_pass(frames, truth[0], halves, np.zeros(2), 0, 1, 30.0, 0, "hold")
     assert np.all(lost < 0)
     err = np.linalg.norm(px - truth, axis=-1)
     moved = np.flatnonzero(np.diff(truth[:, 1, 0], prepend=np.nan) > 5.0)
@@ -476,7 +476,7 @@ def test_rough_pass_matches_an_object_on_new_scenery_against_the_scenery():
     template) pulls a plain least-squares match about 6 px back towards the dark side. Matched
     as a composite (its pixels against the template, the ring against the static scenery where
     it now is), it is found within 0.5 px on either side of the boundary and far from it."""
-    from galileo_jax.observe.matte import _match, _template
+    from galileo_jax.observe.rough import _match, _template
 
     H, W, side, ss = 120, 200, 11.0, 8
     rng = np.random.default_rng(1)
@@ -509,7 +509,7 @@ def test_rough_pass_matches_a_motion_blurred_look():
     badly (the RMS difference that, growing with the speed, had the rough pass lose a fast
     blurred cube or slide along its streak); the look blurred along the motion over one of
     the trial shutter shares fits it at under half that RMS, within half a pixel."""
-    from galileo_jax.observe.matte import _blurred, _match, _template
+    from galileo_jax.observe.rough import _blurred, _match, _template
 
     H, W, side = 80, 160, 16
 

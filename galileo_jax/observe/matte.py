@@ -28,7 +28,7 @@ Each measurement carries a quality in [0, 1]: the fraction of the object's matte
 seen and agreed with its template (:class:`Measurement`).
 
 * **Track** (:func:`track_matte`): every frame is measured where a rough track (template
-  matching) puts the object; a centre that walked farther from it than its margin plus the
+  matching, :mod:`galileo_jax.observe.rough`) puts the object; a centre that walked farther from it than its margin plus the
   object's size is not taken. Where the rough track lost an object, it is followed on from
   its own measurements (:func:`_bridge`). Frames in which two objects are out of their start's
   order (:func:`_in_order`: they cannot pass through each other) and lone measured frames
@@ -39,7 +39,6 @@ All pixel coordinates are (u, v): u to the right, v down, in px of the full-size
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import NamedTuple
 
@@ -47,7 +46,9 @@ import cv2
 import numpy as np
 
 from galileo_jax.errors import TrackingError
-from galileo_jax.observe.tracks import Window, frame_median, polygon_mask, window_corners
+from galileo_jax.observe.rough import rough_pass, static_scenery
+from galileo_jax.observe.tracks import (BACKGROUND_FRAMES, BACKGROUND_MIN, crop_box, footprint, footprints_along,
+                                        frame_median, spread_indices, visible_fraction, weighted_centroid)
 
 #: Unusable pixels (occluded or without contrast) in the footprint above which the centre comes
 #: from aligning the template instead of the centroid.
@@ -66,43 +67,12 @@ RESIDUAL_SDS = 5.0
 RESIDUAL_MIN = 14.0
 #: Object colours closer than this (grey levels) to the background give no usable alpha.
 CONTRAST_MIN = 20.0
-#: Share of the current look mixed into the rough pass's template after each clean match.
-EVOLVE = 0.3
-#: A rough-pass match with an RMS difference above this many times the recent ones (plus 10
-#: grey levels) is a miss; three misses running lose the track.
-LOST_RMS = 3.0
-#: ... the recent RMS taken as at least this (grey levels): a resting object matches its own
-#: look almost exactly, and its first moving frames (blur, an impact) must not count as misses.
-LOST_FLOOR = 12.0
-#: Speed (px per frame) from which the rough pass also matches an object's look motion-blurred ...
-BLUR_SPEED = 6.0
-#: ... over these shares of a frame's motion (the camera's shutter, as a share of the frame
-#: interval: 0.5 is the common 180-degree shutter).
-SHUTTERS = (0.5, 1.0)
-#: Speed (px per frame) from which the rough pass, while it does not know the camera's shutter,
-#: matches each object both sharp and motion-blurred, and counts which fits best (a vote).
-PROBE_SPEED = 12.0
-#: Votes after which the shutter is decided for the rest of the pass ("sharp": blurred looks are
-#: no longer tried; a blurred look of a sharp, textured object is smooth and fits the scenery
-#: about as well, so it may win where the object turns and its sharp look fits worse).
-SHUTTER_VOTES = 3
-#: Footprint area (px) under which the rough pass matches an object as a composite with the
-#: scenery (:func:`_match`; about 24 x 24 px: there the ring of background in its template is
-#: at least a sixth of it).
-COMPOSITE_AREA = 576
-#: Turn (rad) of the template tried either way when the rough pass searches wider.
-WIDE_TURN = math.radians(15.0)
 #: Relative change of an object's colour along its path (light, shading) that its palette
 #: still explains (measured: 10% between the two ends of a rendered perspective scene).
 SHADING = 0.12
 #: Brightness change of an object's colours (relative) that the matte allows pixel by pixel
 #: (the object passing into shade, or nearer a lamp).
 GAIN = 0.35
-#: Smallest background threshold in grey levels (compressed video hides small noise in static
-#: areas, and its blocks differ by a few levels).
-BACKGROUND_MIN = 8.0
-#: Frames, spread evenly over the video, whose per-pixel median is the static background.
-BACKGROUND_FRAMES = 15
 #: A direction of motion within this (rad) of a straight segment of the path is the object's
 #: tilt there (:func:`_angles`); one farther from every segment is not a slide.
 PATH_TILT_SNAP = math.radians(20.0)
@@ -184,9 +154,6 @@ NOT_FOUND = Measurement(np.full(2, np.nan), 0.0, 0.0, 1.0, False)
 # ------------------------------------------------------------------------------ background
 
 
-def _sample(n_frames: int, n: int) -> np.ndarray:
-    return np.unique(np.linspace(0, n_frames - 1, min(n, n_frames)).round().astype(int))
-
 
 def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAMES, region=None,
                       median: np.ndarray | None = None) -> ColourBackground:
@@ -215,7 +182,7 @@ def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAM
     x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), W), min(int(y1), H)
     part = frames[:, y0:y1, x0:x1]
     cut = (lambda k: covered(k)[y0:y1, x0:x1]) if covered is not None else None
-    idx = _sample(len(frames), n)
+    idx = spread_indices(len(frames), n)
     if median is None:
         median = frame_median(part[idx])
     elif median.shape[:2] == (H, W):
@@ -348,37 +315,6 @@ def _unmix(de: np.ndarray, dd: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, 
     return np.take_along_axis(a, k, 0)[0], np.take_along_axis(r2, k, 0)[0]
 
 
-# ------------------------------------------------------------------------------ geometry
-
-
-def footprint(shape, centre, half, angle: float, grow: float = 0.0, offset=(0, 0)) -> np.ndarray:
-    """(h, w) bool: the rectangle of half sizes ``half`` (along, across; px) grown by ``grow``
-    px, turned by ``angle`` rad, centred at ``centre`` (px, full-frame), in an array of
-    ``shape`` whose pixel (0, 0) is full-frame pixel ``offset``."""
-    window = Window((half[0] + grow, half[1] + grow), angle)
-    return polygon_mask(shape, window_corners(centre, window), offset) > 0
-
-
-def _box(shape, centre, radius: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Integer corners (lo, hi) of the square of ``radius`` px around ``centre``, clamped to
-    the image; None if it is empty or the centre is not finite."""
-    if not np.all(np.isfinite(centre)):
-        return None
-    h, w = shape[:2]
-    lo = np.maximum(np.floor(np.asarray(centre) - radius).astype(int), 0)
-    hi = np.minimum(np.ceil(np.asarray(centre) + radius).astype(int) + 1, [w, h])
-    if np.any(hi - lo < 3):
-        return None
-    return lo, hi
-
-
-def _centroid(weights: np.ndarray) -> np.ndarray | None:
-    m = cv2.moments(weights.astype(np.float32), binaryImage=False)
-    if m["m00"] <= 1e-6:
-        return None
-    return np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
-
-
 # ------------------------------------------------------------------------------ alignment
 
 
@@ -499,7 +435,7 @@ def measure(frame: np.ndarray, background: ColourBackground, look: Look, guess, 
         the matte's mass on good pixels over the template's there).
     """
     reach = math.hypot(*half) + margin + 2 + 0.5 * blur
-    box = _box(frame.shape, guess, reach + 3)
+    box = crop_box(frame.shape, guess, reach + 3)
     if box is None:
         return NOT_FOUND
     lo, hi = box
@@ -514,7 +450,7 @@ def measure(frame: np.ndarray, background: ColourBackground, look: Look, guess, 
     region = None
     for _ in range(refine):
         region = footprint(alpha.shape, centre + lo, half, angle, grow=margin, offset=lo)
-        found = _centroid(np.where(region, alpha, 0.0))
+        found = weighted_centroid(np.where(region, alpha, 0.0))
         if found is None:
             return NOT_FOUND
         shift = float(np.abs(found - centre).max())
@@ -543,7 +479,7 @@ def measure(frame: np.ndarray, background: ColourBackground, look: Look, guess, 
     T = _place(look.template, look.centre, angle, c, alpha.shape)
     near = cv2.dilate((T > 0.01).astype(np.uint8), near_k) > 0
     filled = np.where(near, np.where(bad, T, alpha), 0.0)
-    found = _centroid(filled)
+    found = weighted_centroid(filled)
     if found is None:
         return NOT_FOUND
     mass = float(T.sum())
@@ -584,7 +520,7 @@ def object_colours(frames, background: ColourBackground, centres, half, angles, 
     bg_thr, res_thr = thresholds(background.noise_sd)
     pool = []
     for frame, c, a in zip(frames, centres, angles):
-        box = _box(frame.shape, c, math.hypot(*half) + 2)
+        box = crop_box(frame.shape, c, math.hypot(*half) + 2)
         if box is None:
             continue
         lo, hi = box
@@ -606,20 +542,20 @@ def learn_template(frame, background: ColourBackground, palette: Palette, centre
     """The :class:`Look` of an object from one clean frame: its matte around ``centre``,
     turned upright (by -``angle``), and its centroid and area."""
     reach = math.hypot(*half) + margin + 3
-    box = _box(frame.shape, centre, reach)
+    box = crop_box(frame.shape, centre, reach)
     lo, hi = box
     img = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
     alpha, _ = matte(img, background.image[lo[1]:hi[1], lo[0]:hi[0]], palette, background.noise_sd)
     c = np.asarray(centre, float) - lo
     for _ in range(10):  # re-centred on the matte, in case ``centre`` is a rough one
         cut = np.where(footprint(alpha.shape, c + lo, half, angle, grow=margin, offset=lo), alpha, 0.0)
-        c = _centroid(cut)
+        c = weighted_centroid(cut)
         if c is None:
             raise ValueError("no matte at the object's position")
     alpha = cut
     size = int(2 * math.ceil(reach) + 1)
     upright = _place(alpha.astype(np.float32), c, -angle, ((size - 1) / 2, (size - 1) / 2), (size, size))
-    tc = _centroid(upright)
+    tc = weighted_centroid(upright)
     return Look(palette, upright.astype(np.float32), tc, float(upright.sum()))
 
 
@@ -649,23 +585,6 @@ class MatteTracks(NamedTuple):
     lost: np.ndarray
     rough: np.ndarray
     look_frame: np.ndarray
-
-
-def _visible_fraction(shape, centre, half, angle) -> float:
-    """Fraction of the footprint's area inside the image."""
-    if not np.all(np.isfinite(centre)):
-        return 0.0
-    r = math.hypot(*half) + 2
-    lo = np.floor(np.asarray(centre) - r).astype(int)
-    size = int(2 * math.ceil(r) + 2)
-    fp = footprint((size, size), centre, half, angle, offset=lo)
-    total = fp.sum()
-    if total == 0:
-        return 0.0
-    h, w = shape[:2]
-    ys, xs = np.nonzero(fp)
-    ys, xs = ys + lo[1], xs + lo[0]
-    return float(((xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)).sum() / total)
 
 
 def _angles(px: np.ndarray, ok: np.ndarray, angle0: float, min_step: float = 1.5, tilts=None) -> np.ndarray:
@@ -705,458 +624,6 @@ def _angles(px: np.ndarray, ok: np.ndarray, angle0: float, min_step: float = 1.5
     return out
 
 
-class _Template(NamedTuple):
-    """An object's look for the rough pass: BGR crop, mask of its footprint (grown by 1 px, so
-    that its outline against the background localises it), the object's centre in the crop
-    and its tilt there."""
-
-    image: np.ndarray
-    mask: np.ndarray
-    centre: np.ndarray
-    angle: float
-    core: np.ndarray  # the footprint itself (not grown): the pixels the object covers
-
-
-def _template(frame: np.ndarray, centre, half, angle: float) -> _Template | None:
-    box = _box(frame.shape, centre, math.hypot(*half) + 3)
-    if box is None:
-        return None
-    lo, hi = box
-    size = (hi[1] - lo[1], hi[0] - lo[0])
-    mask = footprint(size, centre, half, angle, grow=1.0, offset=lo)
-    core = footprint(size, centre, half, angle, offset=lo) & mask
-    return _Template(frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32), mask.astype(np.uint8),
-                     np.asarray(centre, float) - lo, float(angle), core.astype(np.uint8))
-
-
-def _turned(tpl: _Template, angle: float) -> _Template:
-    """The template turned about the object's centre to tilt ``angle``."""
-    d = angle - tpl.angle
-    if abs(d) < 1e-3:
-        return tpl
-    c, s = math.cos(d), math.sin(d)
-    R = np.array([[c, -s], [s, c]])
-    h, w = tpl.mask.shape
-    M = np.hstack([R, (tpl.centre - R @ tpl.centre)[:, None]])
-    img = cv2.warpAffine(tpl.image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    mask = cv2.warpAffine(tpl.mask, M, (w, h), flags=cv2.INTER_NEAREST)
-    core = cv2.warpAffine(tpl.core, M, (w, h), flags=cv2.INTER_NEAREST) & mask
-    return _Template(img, mask, tpl.centre, angle, core)
-
-
-def _evolve(tpl: _Template, frame: np.ndarray, centre, rate: float) -> _Template:
-    """The template moved towards the object's look in ``frame`` at ``centre`` (px, sub-pixel)
-    by ``rate`` (exponential forgetting, as the Open Source Physics Tracker's evolving
-    template)."""
-    h, w = tpl.mask.shape
-    shift = np.asarray(centre, float) - tpl.centre
-    M = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]])
-    now = cv2.warpAffine(frame, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                         borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
-    return tpl._replace(image=(1.0 - rate) * tpl.image + rate * now)
-
-
-def _parabola(a: float, b: float, c: float) -> float:
-    """Offset of the extremum of a parabola through (-1, a), (0, b), (1, c), in [-0.5, 0.5]."""
-    den = a - 2 * b + c
-    if not (np.isfinite(den) and den > 1e-12):  # a neighbour left out (another object there)
-        return 0.0
-    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
-
-
-def _match(frame: np.ndarray, tpl: _Template, predicted, radius: float, n_best: int = 5,
-           scenery: np.ndarray | None = None) -> list[tuple[np.ndarray, float]]:
-    """Where the template fits best within ``radius`` px of ``predicted``: up to ``n_best``
-    local minima, best first, each the object's centre (2,) px, to a fraction of a pixel (a
-    parabola through the minimum), and the RMS difference per channel there (grey levels);
-    none if the search region leaves the image.
-
-    Without ``scenery`` the fit is least squares over the template's mask (the object and a
-    1 px ring of the background it had when the template was taken). With ``scenery`` ((H, W,
-    3) float32, the static background) the object is matched as a composite and scored as a
-    likelihood ratio: its pixels (``tpl.core``) against the template, the ring against the
-    scenery where it now is (an object moving onto other scenery keeps its outline), plus a
-    penalty where the scenery alone explains the object's pixels better than the template does
-    (the core's sum of squares against the template minus that against the scenery, where
-    positive): a stretch of scenery that resembles the object is no match, however well its
-    colour fits (for a Gaussian pixel noise the log-likelihood ratio of "object here" against
-    "scenery here" is the difference of those two sums of squares).
-
-    The composite costs about 2.5 times the plain fit; it is used for objects whose footprint
-    is under :data:`COMPOSITE_AREA` px, where the ring is a large part of the template (a third
-    at 11 px across, a twelfth at 50 px).
-    """
-    h, w = tpl.mask.shape
-    r = int(math.ceil(radius))
-    lo = np.round(np.asarray(predicted, float) - tpl.centre).astype(int) - r
-    hi = lo + [w + 2 * r, h + 2 * r]
-    H, W = frame.shape[:2]
-    lo, hi = np.maximum(lo, 0), np.minimum(hi, [W, H])
-    if hi[0] - lo[0] < w + 2 or hi[1] - lo[1] < h + 2:
-        return []
-    region = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
-    composite = scenery is not None and int(tpl.core.sum()) < COMPOSITE_AREA
-    ssd = _match_score(region, scenery[lo[1]:hi[1], lo[0]:hi[0]] if composite else None, tpl)
-    out = []
-    for y, x in _minima(ssd, n_best):
-        dx = _parabola(ssd[y, x - 1], ssd[y, x], ssd[y, x + 1]) if 0 < x < ssd.shape[1] - 1 else 0.0
-        dy = _parabola(ssd[y - 1, x], ssd[y, x], ssd[y + 1, x]) if 0 < y < ssd.shape[0] - 1 else 0.0
-        rms = math.sqrt(max(float(ssd[y, x]), 0.0) / max(3 * int(tpl.mask.sum()), 1))
-        out.append((np.array([lo[0] + x + dx, lo[1] + y + dy]) + tpl.centre, rms))
-    return out
-
-
-def _minima(ssd: np.ndarray, n: int) -> list[tuple[int, int]]:
-    """Up to ``n`` local minima (row, column) of a score map (5x5 neighbourhoods), best first."""
-    minima = (ssd <= cv2.erode(ssd, np.ones((5, 5), np.uint8))).nonzero()
-    order = np.argsort(ssd[minima])[:n]
-    return [(int(minima[0][j]), int(minima[1][j])) for j in order]
-
-
-def _match_score(region: np.ndarray, still: np.ndarray | None, tpl: _Template) -> np.ndarray:
-    """The score map of :func:`_match` (sum of squares, grey levels^2) for the template at
-    every offset in ``region`` ((h, w, 3) float32), with ``still`` the scenery there (NaN
-    where unknown) or None."""
-    if still is None:
-        return cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=np.repeat(tpl.mask[..., None], 3, axis=2))
-    core = tpl.core.astype(np.float32)
-    ring = tpl.mask.astype(np.float32) - core
-    d2 = np.square(region - still).sum(axis=-1)
-    obj = cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=np.repeat(core[..., None], 3, axis=2))
-    ring_tpl = cv2.matchTemplate(region, tpl.image, cv2.TM_SQDIFF, mask=np.repeat(ring[..., None], 3, axis=2))
-    unknown = np.isnan(d2)
-    d2[unknown] = 0.0
-    ring_bg = cv2.matchTemplate(d2, ring, cv2.TM_CCORR)
-    bg = cv2.matchTemplate(d2, core, cv2.TM_CCORR)
-    if unknown.any():  # scenery not known there (an object rests there): no comparison with it
-        unknown = unknown.astype(np.float32)
-        ring_bg[cv2.matchTemplate(unknown, ring, cv2.TM_CCORR) > 0.5] = np.inf
-        bg[cv2.matchTemplate(unknown, core, cv2.TM_CCORR) > 0.5] = np.inf
-    return obj + np.minimum(ring_tpl, ring_bg) + np.maximum(obj - bg, 0.0)
-
-
-def _recentre(frame: np.ndarray, scenery: np.ndarray, centre, half, angle: float, margin: float
-              ) -> np.ndarray | None:
-    """The centroid of what differs from ``scenery`` (the median of a sample of frames: a
-    moving object is not in it where it passes) inside the object's footprint at ``centre``
-    grown by ``margin`` px in ``frame``, if that region is about the object's size (0.6 to 1.6
-    times its footprint; else None: the object rests where the median holds it, or a hand
-    covers it) and the scenery is known all over it (not NaN). Keeps the rough pass's template
-    from drifting off the object."""
-    box = _box(frame.shape, centre, math.hypot(*half) + margin + 2)
-    if box is None:
-        return None
-    lo, hi = box
-    d = np.abs(frame[lo[1]:hi[1], lo[0]:hi[0]] - scenery[lo[1]:hi[1], lo[0]:hi[0]]).max(axis=-1)
-    near = footprint(d.shape, centre, half, angle, grow=margin, offset=lo)
-    if np.isnan(d[near]).any():  # the scenery is not known there (an object rests there)
-        return None
-    thr = max(BACKGROUND_MIN + 4, 4.0 * 1.4826 * float(np.nanmedian(d)))
-    fg = ((d > thr) & near).astype(np.uint8)
-    fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, _CROSS)
-    area = float(fg.sum())
-    if not 0.6 * 4 * half[0] * half[1] <= area <= 1.6 * 4 * (half[0] + 0.5 * margin) * (half[1] + 0.5 * margin):
-        return None
-    c = _centroid(fg.astype(np.float32))
-    return None if c is None else c + lo
-
-
-def _unchanged(a: np.ndarray, b: np.ndarray, centre, half, angle: float, thr: float) -> bool:
-    """True if an object's footprint at ``centre`` (grown by 2 px) looks the same in frames
-    ``a`` and ``b``: fewer than 2% of its pixels changed by more than ``thr`` grey levels."""
-    box = _box(a.shape, centre, math.hypot(*half) + 4)
-    if box is None:
-        return False
-    lo, hi = box
-    d = np.abs(a[lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16) - b[lo[1]:hi[1], lo[0]:hi[0]].astype(np.int16)).max(-1)
-    fp = footprint(d.shape, centre, half, angle, grow=2.0, offset=lo)
-    return bool((d[fp] > thr).mean() < 0.02) if fp.any() else False
-
-
-def _scenery(median: np.ndarray, start: np.ndarray, halves, angles) -> np.ndarray:
-    """(H, W, 3) float32 static scenery for the rough pass: ``median`` (H, W, 3), the plain
-    median of a sample of frames, with NaN over the objects' footprints at their start (grown
-    by a quarter of their size, for a near face in perspective), where an object resting for
-    most of the video is in that median."""
-    scenery = median.copy()
-    n = len(start)
-    grow = np.array([[0.25 * max(h) + 2.0 for h in halves]])
-    covered = _covered(np.asarray(start, float)[None], halves, np.asarray(angles, float).reshape(1, n),
-                       median.shape[:2], grow)(0)
-    scenery[covered] = np.nan
-    return scenery
-
-
-def _rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_frame: int, on_loss: str,
-                scenery: np.ndarray | None = None, tilts=None):
-    """Follow the objects frame by frame from ``k0`` in direction ``step`` (+1 or -1).
-
-    An object whose footprint did not change since the previous frame rests there. Otherwise
-    its look (:class:`_Template`, from frame ``k0``, turned to its direction of motion and
-    evolving with it: :data:`EVOLVE`) is matched (:func:`_match`, least squares over the
-    footprint: a plain object is localised by its outline, on any background; a small one as
-    a composite with ``scenery``) around its predicted position (constant velocity), within
-    4 px plus a frame's motion (:func:`_candidates`); where the best match is worse than the
-    recent ones (a turn onto the floor, an impact), also turned by +-:data:`WIDE_TURN` and
-    onto each of the path's ``tilts`` (ramp, floor), moving along it, and where it is much
-    worse, three times wider. Motion-blurred looks are tried until the camera's shutter is
-    known: the first :data:`SHUTTER_VOTES` fast frames (all objects together) decide whether
-    blurred looks fit better than sharp ones; a sharp camera then matches sharp looks only. An
-    object whose footprint would leave the image is followed no further.
-
-    ``scenery``: (H, W, 3) float32 static scenery (:func:`_scenery`; default computed here
-    from :data:`BACKGROUND_FRAMES` frames).
-    ``tilts``: image tilts (rad) of the path's segments, or None.
-
-    Returns:
-        (N, n, 2) pixels (NaN where not followed), (N, n) RMS difference of each match (grey
-        levels; NaN where not followed, the previous one where it rested), (N, n) bool,
-        matches confirmed by :func:`_recentre` (the object seen there, whole and alone, against
-        the scenery) and (n,) the frame at which each object was lost inside the image (-1
-        if never).
-
-    Raises:
-        TrackingError: with ``on_loss="raise"``, an object not matched in 3 frames running.
-    """
-    N, n = len(frames), len(start)
-    px = np.full((N, n, 2), np.nan)
-    px[k0] = start
-    rms = np.full((N, n), np.nan)
-    rms[k0] = 0.0
-    verified = np.zeros((N, n), bool)
-    lost = np.full(n, -1)
-    vel = np.zeros((n, 2))
-    alive = np.ones(n, bool)
-    angle = np.array(angles0, float)
-    misses = np.zeros(n, int)
-    templates = [_template(frames[k0], start[i], halves[i], angle[i]) for i in range(n)]
-    turned = list(templates)
-    recent_rms = [[] for _ in range(n)]
-    if scenery is None:
-        scenery = _scenery(frame_median(frames[_sample(N, BACKGROUND_FRAMES)]), start, halves, angles0)
-    shutter, votes, probing = None, [0, 0], {}
-    ks = range(k0 + step, N) if step > 0 else range(k0 - 1, -1, -1)
-    prev = k0
-    for k in ks:
-        # 1. each object's candidate positions (resting objects stay put)
-        options: dict[int, list] = {}
-        for i in range(n):
-            if not alive[i] or templates[i] is None:
-                continue
-            if np.linalg.norm(vel[i]) < 2.0 and \
-                    _unchanged(frames[k], frames[prev], px[prev, i], halves[i], angle[i], BACKGROUND_MIN):
-                px[k, i], rms[k, i], vel[i], misses[i] = px[prev, i], rms[prev, i], 0.0, 0
-                continue
-            pred = px[prev, i] + vel[i]
-            if _visible_fraction(frames.shape[1:], px[prev, i], halves[i], angle[i]) < 0.999 and \
-                    _visible_fraction(frames.shape[1:], pred, halves[i], angle[i]) < 1.0:
-                alive[i] = False  # leaving the image
-                continue
-            # near another object an impact may change its speed at once: its blur is not known
-            near = _touching(i, px[prev, i], {}, px[prev], halves, gap=4.0 + float(np.linalg.norm(vel[i])))
-            probing[i] = not near and shutter is None and float(np.linalg.norm(vel[i])) >= PROBE_SPEED
-            options[i] = _candidates(frames[k], turned[i], pred, vel[i], halves[i], recent_rms[i][-10:],
-                                     blurred=not near, scenery=scenery, tilts=tilts, shutter=shutter)
-        # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
-        chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
-                         halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))})
-        # 3. update (a match far worse than the recent ones is no match: the object is hidden)
-        for i, opts in options.items():
-            recent = recent_rms[i][-10:]
-            # an object touching another shows less of its look (a face hidden by the other,
-            # which the template's border also covers): its match may be twice as far off
-            touching = i in chosen and _touching(i, chosen[i][0], chosen, px[k], halves)
-            if i in chosen and len(recent) > 2 and chosen[i][1] > (2.0 if touching else 1.0) * \
-                    (LOST_RMS * max(float(np.median(recent)), LOST_FLOOR) + 10.0):
-                del chosen[i]
-
-            if i not in chosen:
-                misses[i] += 1
-                px[k, i] = px[prev, i] + vel[i]
-                if misses[i] >= 3:
-                    alive[i], lost[i] = False, k
-                    if on_loss == "raise":
-                        when = f" (t = {(k + first_frame) / fps:.2f} s)" if fps else ""
-                        raise TrackingError(f"object {i + 1} track lost at frame {k + first_frame}{when}: it was not "
-                                            "found near where it was heading; check the video, or give "
-                                            "camera.start_pixels", object_index=i)
-                continue
-            misses[i] = 0
-            centre, r, tpl, _, was_blurred = chosen[i]
-            if probing[i] and not touching:  # the camera's shutter, learnt from the first fast frames
-                votes[int(was_blurred)] += 1
-                if sum(votes) >= SHUTTER_VOTES:
-                    shutter = "blur" if votes[1] > votes[0] else "sharp"
-            speed = float(np.linalg.norm(vel[i]))
-            if not touching:
-                at = _recentre(frames[k], scenery, centre, halves[i], tpl.angle, 2.0 + 0.5 * speed)
-                if at is not None and np.linalg.norm(at - centre) < 0.5 * min(halves[i]):
-                    centre, verified[k, i] = at, True
-            new_vel = centre - px[prev, i]
-            turned[i], angle[i] = tpl, tpl.angle
-            if np.linalg.norm(new_vel) > 1.5:
-                b = math.atan2(step * new_vel[1], step * new_vel[0])
-                a = (b - angles0[i] + math.pi / 2) % math.pi - math.pi / 2 + angles0[i]
-                if abs(a - turned[i].angle) > math.radians(2.0):
-                    turned[i] = _turned(turned[i], a)
-                angle[i] = a
-            vel[i] = new_vel
-            px[k, i], rms[k, i] = centre, r
-            typical = float(np.median(recent_rms[i][-10:])) if len(recent_rms[i]) > 2 else np.inf
-            recent_rms[i].append(r)
-            # the look evolves (blur, turn, light)
-            if not touching and np.isfinite(typical) and r <= 1.1 * typical + 2.0:
-                turned[i] = _evolve(turned[i], frames[k], centre, EVOLVE)
-        prev = k
-    return px, rms, verified, lost
-
-
-def _touching(i: int, centre, chosen: dict, fixed: np.ndarray, halves, gap: float = 4.0) -> bool:
-    """Whether object ``i`` at ``centre`` (px) is within ``gap`` px of touching another object,
-    at its chosen candidate (``chosen``: {j: (centre, ...)}) or else at its position in
-    ``fixed`` ((n, 2) px, NaN where unknown)."""
-    for j in range(len(halves)):
-        if j == i:
-            continue
-        other = chosen[j][0] if j in chosen else fixed[j]
-        if np.all(np.isfinite(other)) and \
-                np.linalg.norm(np.asarray(centre) - other) < math.hypot(*halves[i]) + math.hypot(*halves[j]) + gap:
-            return True
-    return False
-
-
-def _blurred(tpl: _Template, length: float, direction: float) -> _Template:
-    """The template as a camera sees it moving ``length`` px at ``direction`` (rad) during
-    the exposure: its image averaged along that segment (a box filter, the exposure of a
-    shutter open for that stretch of the motion) and its mask swept along it. Padded by the
-    border's pixels (background around the object's outline) so the swept mask fits."""
-    pad = int(math.ceil(0.5 * length)) + 1
-    img = cv2.copyMakeBorder(tpl.image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
-    mask = cv2.copyMakeBorder(tpl.mask, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
-    size = 2 * pad + 1
-    line = np.zeros((size, size), np.float32)
-    d = np.array([math.cos(direction), math.sin(direction)]) * 0.5 * length
-    p0, p1 = np.round((pad - d) * 16).astype(int), np.round((pad + d) * 16).astype(int)
-    cv2.line(line, tuple(map(int, p0)), tuple(map(int, p1)), 1.0, thickness=1, lineType=cv2.LINE_AA, shift=4)
-    line /= line.sum()
-    img = cv2.filter2D(img, -1, line, borderType=cv2.BORDER_REPLICATE)
-    core = cv2.copyMakeBorder(tpl.core, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
-    mask = cv2.dilate(mask, (line > 0).astype(np.uint8))
-    core = cv2.dilate(core, (line > 0).astype(np.uint8))
-    return _Template(img, mask, tpl.centre + pad, tpl.angle, core)
-
-
-def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: bool = True,
-                scenery: np.ndarray | None = None, tilts=None, shutter: str | None = None) -> list:
-    """Candidate positions of one object in a frame for :func:`_rough_pass`: (centre, RMS,
-    template, cost, matched blurred) tuples. Searched within 4 px plus a frame's motion of the
-    prediction (twice the object's size while its speed is not known yet); where the best is
-    worse than the recent matches' median (a turn onto the floor, an impact), also with the
-    template turned by +-:data:`WIDE_TURN` and onto each of the path's ``tilts`` (moving along
-    that segment), and where it is much worse, three times wider. With ``blurred`` (not near
-    another object) and a ``shutter`` not known to be "sharp", an object moving at least
-    :data:`BLUR_SPEED` px per frame whose look fits worse than it did (or, while ``shutter`` is
-    None, at least :data:`PROBE_SPEED`) is also matched motion-blurred (:func:`_blurred`, over
-    each of :data:`SHUTTERS` of a frame's motion): a sharp look matched to a long streak slides
-    along it. A candidate pays for its distance from the prediction: the recent RMS times
-    (distance / reach)^2, so a look-alike in the scenery does not win over the object where it
-    is expected. The template returned is the sharp one (the next frame blurs it anew)."""
-    speed = float(np.linalg.norm(vel))
-    local = 4.0 + speed if len(recent) > 2 else 4.0 + max(speed, 2 * max(half))
-    typical = float(np.median(recent)) if len(recent) > 2 else np.inf
-
-    def blurred_looks(t):
-        direction = math.atan2(vel[1], vel[0])
-        return [_blurred(t, f * speed, direction) for f in SHUTTERS]
-
-    def matches(t, radius, looks, at=pred):  # the look t matched as each of ``looks`` (t or t blurred)
-        return [(c, r, t, v is not t) for v in looks for c, r in _match(frame, v, at, radius, scenery=scenery)]
-
-    def best(options):
-        return min((o[1] for o in options), default=np.inf)
-
-    out = matches(tpl, local, [tpl])
-    # the sharp look fits worse than it did (or the shutter is still being learnt at speed):
-    # also try it blurred
-    blur = blurred and shutter != "sharp" and speed >= BLUR_SPEED and \
-        (best(out) > 1.1 * typical + 2.0 or (shutter is None and speed >= PROBE_SPEED))
-    if blur:
-        out += matches(tpl, local, blurred_looks(tpl))
-    if best(out) > typical:  # a turn (onto the floor, an impact)
-        for a in (-WIDE_TURN, WIDE_TURN):
-            t = _turned(tpl, tpl.angle + a)
-            out += matches(t, local, [t] + (blurred_looks(t) if blur else []))
-        for tilt in tilts if tilts is not None and speed > 0 else ():  # onto another segment of the path
-            a = (tilt - tpl.angle + math.pi / 2) % math.pi - math.pi / 2  # the turn, within +-90 degrees
-            if abs(a) < math.radians(3.0):
-                continue
-            t = _turned(tpl, tpl.angle + a)
-            c, s_ = math.cos(a), math.sin(a)
-            along = np.array([c * vel[0] - s_ * vel[1], s_ * vel[0] + c * vel[1]])  # the velocity turned with it
-            out += matches(t, local, [t], at=np.asarray(pred, float) - vel + along)
-    if best(out) > 1.5 * typical + 3.0:  # an impact that starts or stops it: further
-        out += matches(tpl, 3 * local + max(half), [tpl] + (blurred_looks(tpl) if blur else []))
-
-    def cost(c, r):
-        far = (float(np.linalg.norm(c - pred)) / local) ** 2
-        return r + (typical if np.isfinite(typical) else r) * far
-
-    return sorted(((c, r, t, cost(c, r), b) for c, r, t, b in out), key=lambda o: o[3])[:8]
-
-
-def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) -> dict:
-    """One candidate per object (:func:`_candidates`) minimising the summed cost, with no two
-    objects (also those ``fixed`` where they are) closer than 3/4 of the sum of their half
-    lengths along the path (rigid bodies touch at most), and, where ``previous`` gives both
-    objects' positions in the frame before, in the same order as there (the vector from one
-    to the other does not turn by more than 90 degrees in a frame: two objects on one ramp
-    cannot pass through each other; without this, look-alikes that collide may swap
-    identities). Objects without candidates are left out."""
-    ids = [i for i in options if options[i]]
-    if not ids:
-        return {}
-    previous = previous or {}
-
-    def apart(i, c, j, d):
-        if np.linalg.norm(c - d) < 0.75 * (halves[i][0] + halves[j][0]):  # rigid bodies: touching at most
-            return False
-        if i in previous and j in previous:
-            return float(np.dot(c - d, previous[i] - previous[j])) > 0.0
-        return True
-
-    best, best_cost = None, np.inf
-    for combo in itertools.product(*(range(len(options[i])) for i in ids)):
-        picks = {i: options[i][m] for i, m in zip(ids, combo)}
-        total = sum(p[3] for p in picks.values())
-        if total >= best_cost:
-            continue
-        ok = all(apart(i, picks[i][0], j, picks[j][0]) for a, i in enumerate(ids) for j in ids[a + 1:])
-        ok = ok and all(apart(i, picks[i][0], j, c) for i in ids for j, c in fixed.items())
-        if ok:
-            best, best_cost = picks, total
-    if best is None:  # nothing compatible: each its own best
-        best = {i: options[i][0] for i in ids}
-    return best
-
-
-def _covered(px: np.ndarray, halves, angles: np.ndarray, shape, grow: np.ndarray):
-    """``covered(k)``: (H, W) bool, the objects' footprints along (N, n, 2) tracks ``px``,
-    grown by ``grow`` (N, n) px (NaN positions cover nothing)."""
-    def covered(k):
-        out = np.zeros(shape[:2], bool)
-        for i in range(px.shape[1]):
-            c = px[k, i]
-            if np.all(np.isfinite(c)):
-                r = math.hypot(*halves[i]) + grow[k, i] + 2
-                box = _box(shape, c, r)
-                if box is not None:
-                    lo, hi = box
-                    out[lo[1]:hi[1], lo[0]:hi[0]] |= footprint((hi[1] - lo[1], hi[0] - lo[0]), c, halves[i],
-                                                               angles[k, i], grow=grow[k, i], offset=lo)
-        return out
-    return covered
-
-
 def _speeds(px: np.ndarray) -> np.ndarray:
     """(N, n) speed in px per frame (central differences; 0 where unknown)."""
     v = np.zeros(px.shape[:2])
@@ -1178,7 +645,7 @@ def _clean_frames(px: np.ndarray, good: np.ndarray, i: int, halves, speed: np.nd
     diag = 2 * math.hypot(*halves[i])
     ok = np.all(np.isfinite(px[:, i]), axis=1) & good[:, i]
     for k in np.flatnonzero(ok):
-        if _visible_fraction(shape, px[k, i], halves[i], 0.0) < 1.0:
+        if visible_fraction(shape, px[k, i], halves[i], 0.0) < 1.0:
             ok[k] = False
             continue
         for j in range(n):
@@ -1263,7 +730,7 @@ def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, an
     pixels, quality, aligned = px.copy(), np.zeros((N, n)), np.zeros((N, n), bool)
     for k in range(N) if ks is None else ks:
         for i in range(n):
-            if not known[k, i] or _visible_fraction(shape, px[k, i], halves[i], angles[k, i]) < 0.999:
+            if not known[k, i] or visible_fraction(shape, px[k, i], halves[i], angles[k, i]) < 0.999:
                 continue
             others = [(px[k, j], halves[j], angles[k, j]) for j in range(n) if j != i and known[k, j]]
             margin = 2.0 + 0.6 * speed[k, i]
@@ -1280,7 +747,7 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     """Follow objects without texture by their colour matte (module docstring).
 
     Three passes: (1) a rough track from ``start_frame`` forwards and backwards, matching each
-    object's look in that frame (:func:`_rough_pass`); (2) the background (the median of the
+    object's look in that frame (:func:`rough_pass`); (2) the background (the median of the
     frames, leaving out the objects' footprints along the rough track), and each object's
     colours and clean template from frames in which it is seen whole and alone; (3) every
     frame measured (:func:`measure`) at the rough track's position.
@@ -1318,11 +785,11 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     angles0 = np.asarray(angles, float).reshape(n)
     # the plain median of the sampled frames: the rough pass's scenery (objects' start
     # footprints unknown) and the first background's starting point
-    plain = frame_median(frames[_sample(len(frames), BACKGROUND_FRAMES)])
-    scenery = _scenery(plain, start, halves, angles0)
-    fwd, r_f, b_f, lost_f = _rough_pass(frames, start, halves, angles0, start_frame, +1, fps, first_frame, on_loss,
+    plain = frame_median(frames[spread_indices(len(frames), BACKGROUND_FRAMES)])
+    scenery = static_scenery(plain, start, halves, angles0)
+    fwd, r_f, b_f, lost_f = rough_pass(frames, start, halves, angles0, start_frame, +1, fps, first_frame, on_loss,
                                         scenery, path_tilts)
-    bwd, r_b, b_b, _ = _rough_pass(frames, start, halves, angles0, start_frame, -1, fps, first_frame, "hold",
+    bwd, r_b, b_b, _ = rough_pass(frames, start, halves, angles0, start_frame, -1, fps, first_frame, "hold",
                                    scenery, path_tilts)
     rough, rough_rms, rough_ok = fwd.copy(), r_f.copy(), b_f.copy()
     rough[:start_frame], rough_rms[:start_frame], rough_ok[:start_frame] = bwd[:start_frame], r_b[:start_frame], \
@@ -1353,7 +820,7 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     bg = None
     grows = (0.5 * max(max(h) for h in halves), 0.0)
     for grow_extra in grows if measure_frames is None else grows[:1]:
-        bg = colour_background(frames, _covered(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
+        bg = colour_background(frames, footprints_along(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
                                region=region, median=plain if bg is None else bg.median)
         looks = []
         for i in range(n):
@@ -1417,7 +884,7 @@ def _bridge(frames, bg: ColourBackground, looks, pixels: np.ndarray, quality: np
             missed = 0
             while k < N and quality[k, i] < quality_min and missed < coast:
                 guess = p + v
-                if _visible_fraction(shape, guess, halves[i], angles[k, i]) < 0.999:
+                if visible_fraction(shape, guess, halves[i], angles[k, i]) < 0.999:
                     break
                 speed = float(np.linalg.norm(v))
                 margin = 2.0 + 0.6 * speed
@@ -1476,7 +943,7 @@ def _unseen_till_end(valid: np.ndarray, rough: np.ndarray, halves, angles: np.nd
         seen = np.flatnonzero(valid[:, i])
         last = int(seen[-1]) if len(seen) else start_frame
         after = [k for k in range(last + 1, N) if np.all(np.isfinite(rough[k, i]))
-                 and _visible_fraction(shape, rough[k, i], halves[i], angles[k, i]) >= 1.0]
+                 and visible_fraction(shape, rough[k, i], halves[i], angles[k, i]) >= 1.0]
         if len(after) >= max(min_frames, min_share * N):
             out[i] = last + 1
     return out

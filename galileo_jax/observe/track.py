@@ -37,10 +37,10 @@ import numpy as np
 from galileo_jax.calibration import Calibration
 from galileo_jax.errors import TrackingError
 from galileo_jax.observe.klt import track_objects
-from galileo_jax.observe.matte import footprint, track_matte
+from galileo_jax.observe.matte import track_matte
 from galileo_jax.observe.outline import track_circles
-from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, object_windows,
-                                        path_direction, path_tilts, polygon_mask, window_corners)
+from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, footprint,
+                                        object_windows, path_direction, path_tilts, polygon_mask, window_corners)
 from galileo_jax.scene import Scene
 
 #: Frames in which a KLT track and the colour track of the same object disagree by more than

@@ -4,6 +4,8 @@
 * :class:`Window`: an object's image footprint (a turned rectangle) and its polygon helpers.
 * :func:`background_model`: a grey view of the scene without the moving objects.
 * :func:`frame_median`: the per-pixel median of a stack of frames.
+* :func:`footprint`, :func:`footprints_along`, :func:`visible_fraction`, :func:`crop_box`,
+  :func:`weighted_centroid`: an object's footprint in pixels, and the crops around it.
 * :func:`estimate_noise_sd`: a track's noise SD from its third differences.
 * :func:`object_windows`, :func:`path_direction`, :func:`expected_start_pixels`: where the
   scene's objects appear in the image and which way they start to move.
@@ -265,4 +267,77 @@ def expected_start_pixels(scene: Scene, calib: Calibration, first: np.ndarray | 
         px = px - px[0] + np.asarray(first, float)
     return px
 
+# ------------------------------------------------------------------------------ footprints in the image
+#: Smallest background threshold in grey levels (compressed video hides small noise in static
+#: areas, and its blocks differ by a few levels).
+BACKGROUND_MIN = 8.0
+#: Frames, spread evenly over the video, whose per-pixel median is the static background.
+BACKGROUND_FRAMES = 15
 
+
+def spread_indices(n_frames: int, n: int) -> np.ndarray:
+    """Up to ``n`` frame indices spread evenly over ``n_frames`` frames (first and last included)."""
+    return np.unique(np.linspace(0, n_frames - 1, min(n, n_frames)).round().astype(int))
+
+
+def footprint(shape, centre, half, angle: float, grow: float = 0.0, offset=(0, 0)) -> np.ndarray:
+    """(h, w) bool: the rectangle of half sizes ``half`` (along, across; px) grown by ``grow``
+    px, turned by ``angle`` rad, centred at ``centre`` (px, full-frame), in an array of
+    ``shape`` whose pixel (0, 0) is full-frame pixel ``offset``."""
+    window = Window((half[0] + grow, half[1] + grow), angle)
+    return polygon_mask(shape, window_corners(centre, window), offset) > 0
+
+
+def crop_box(shape, centre, radius: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Integer corners (lo, hi) of the square of ``radius`` px around ``centre``, clamped to
+    the image; None if it is empty or the centre is not finite."""
+    if not np.all(np.isfinite(centre)):
+        return None
+    h, w = shape[:2]
+    lo = np.maximum(np.floor(np.asarray(centre) - radius).astype(int), 0)
+    hi = np.minimum(np.ceil(np.asarray(centre) + radius).astype(int) + 1, [w, h])
+    if np.any(hi - lo < 3):
+        return None
+    return lo, hi
+
+
+def weighted_centroid(weights: np.ndarray) -> np.ndarray | None:
+    m = cv2.moments(weights.astype(np.float32), binaryImage=False)
+    if m["m00"] <= 1e-6:
+        return None
+    return np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+
+
+def visible_fraction(shape, centre, half, angle) -> float:
+    """Fraction of the footprint's area inside the image."""
+    if not np.all(np.isfinite(centre)):
+        return 0.0
+    r = math.hypot(*half) + 2
+    lo = np.floor(np.asarray(centre) - r).astype(int)
+    size = int(2 * math.ceil(r) + 2)
+    fp = footprint((size, size), centre, half, angle, offset=lo)
+    total = fp.sum()
+    if total == 0:
+        return 0.0
+    h, w = shape[:2]
+    ys, xs = np.nonzero(fp)
+    ys, xs = ys + lo[1], xs + lo[0]
+    return float(((xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)).sum() / total)
+
+
+def footprints_along(px: np.ndarray, halves, angles: np.ndarray, shape, grow: np.ndarray):
+    """``covered(k)``: (H, W) bool, the objects' footprints along (N, n, 2) tracks ``px``,
+    grown by ``grow`` (N, n) px (NaN positions cover nothing)."""
+    def covered(k):
+        out = np.zeros(shape[:2], bool)
+        for i in range(px.shape[1]):
+            c = px[k, i]
+            if np.all(np.isfinite(c)):
+                r = math.hypot(*halves[i]) + grow[k, i] + 2
+                box = crop_box(shape, c, r)
+                if box is not None:
+                    lo, hi = box
+                    out[lo[1]:hi[1], lo[0]:hi[0]] |= footprint((hi[1] - lo[1], hi[0] - lo[0]), c, halves[i],
+                                                               angles[k, i], grow=grow[k, i], offset=lo)
+        return out
+    return covered
