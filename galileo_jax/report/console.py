@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from galileo_jax.inference.summary import mixing_warning, optima_warning, profile_note, widening_note
-from galileo_jax.pipeline import FitReport, JointFitReport, identifiability_statement
+from galileo_jax.fit_report import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
     "phi": "(m1-m2)/(m1+m2), what the video shows of the masses",
