@@ -21,7 +21,8 @@ from galileo_jax.observe.matte import track_matte
 from galileo_jax.observe.outline import track_circles
 from galileo_jax.observe.track import track_scene, tracker_of
 from galileo_jax.observe.tracks import (Window, as_gray, background_model, expected_start_pixels, frame_median,
-                                       inside_fraction, object_windows, path_direction, polygon_mask, window_corners)
+                                       inside_fraction, object_windows, path_direction, polygon_mask, spread_indices,
+                                       window_corners)
 from galileo_jax.scene import Scene
 
 # ---------------------------------------------------------------------------- finding objects
@@ -282,7 +283,7 @@ def _centre_in_motion(frames, k: int, rough, window: Window, k_start: int, k1: i
     idx = list(range(0, k_start)) + list(range(later, len(frames)))
     if len(idx) < 3:
         return None
-    idx = np.asarray(idx)[np.unique(np.linspace(0, len(idx) - 1, min(n, len(idx))).round().astype(int))]
+    idx = np.asarray(idx)[spread_indices(len(idx), n)]
     background = frame_median(frames[idx]).astype(np.uint8)
     found = silhouette_centre(frames[k:k + 1], background, rough, window)
     if found is None:  # the flow can be more than half an object off (a small plain object)

@@ -800,7 +800,7 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     speed = _speeds(rough)
     reach = max(math.hypot(*h) for h in halves) + 8 + 0.6 * float(speed.max())
     region = (np.nanmin(rough, axis=(0, 1)) - reach, np.nanmax(rough, axis=(0, 1)) + reach + 1)
-    # clean-frame candidates: the object confirmed against the scenery (:func:`_recentre`), else
+    # clean-frame candidates: the object confirmed against the scenery (:func:`~galileo_jax.observe.rough._recentre`), else
     # (an object that hardly moves) matched about as well as usual
     good = np.isfinite(rough_rms)
     for i in range(n):

@@ -267,6 +267,7 @@ def expected_start_pixels(scene: Scene, calib: Calibration, first: np.ndarray | 
         px = px - px[0] + np.asarray(first, float)
     return px
 
+
 # ------------------------------------------------------------------------------ footprints in the image
 #: Smallest background threshold in grey levels (compressed video hides small noise in static
 #: areas, and its blocks differ by a few levels).
@@ -302,6 +303,8 @@ def crop_box(shape, centre, radius: float) -> tuple[np.ndarray, np.ndarray] | No
 
 
 def weighted_centroid(weights: np.ndarray) -> np.ndarray | None:
+    """(2,) centroid (u, v) of an (h, w) weight image (``cv2.moments``), in its own pixels;
+    None where its total weight is about 0."""
     m = cv2.moments(weights.astype(np.float32), binaryImage=False)
     if m["m00"] <= 1e-6:
         return None
