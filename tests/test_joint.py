@@ -4,7 +4,8 @@ One object on ramps at two angles, the same true friction, 1 s videos at 30 fps 
 position noise, the default 8 physics substeps per frame (with 4, the sliding box's contact
 chatter at 35 degrees made log L jump by ~200 nats between k1 values 0.005 apart, and the
 fit stopped 0.027 from the truth). Problems are module-scoped so each rollout program
-compiles once.
+compiles once, and run on the C engine, the one ``fit`` picks on a CPU (the joint code is the
+same for both engines; cold, this module took 512 s on MJX, 115 s on the C engine).
 
 Tolerance on the shared k1 (0.01): the Gauss-Newton SD of the joint k1 here is ~0.002
 (velocity SD per sample sqrt(0.042^2 + 0.05^2) m/s with the default model floor, 2 x 30
@@ -27,6 +28,8 @@ K1 = 0.25
 MU = 0.3  # rolling test: pipe-board friction
 ANGLES = (20.0, 35.0)
 ROLL_ANGLES = (20.0, 45.0)  # rolls without slipping (tan 0.36 < 3 mu) / rolls and slips (tan 1 > 3 mu = 0.9)
+#: The engine of the fits (module docstring).
+ENGINE = "mujoco"
 
 
 def _scene(angle, rolling=False):
@@ -46,7 +49,7 @@ def _problems(angles, k1, rolling=False, fit_effects=()):
         truth = PhysParams(jnp.array([0.5]), jnp.array([k1]))
         obs = simulated_observation(scene, truth, duration=1.0, position_sd=1e-3, seed=j,
                                     effects=("rolling",) if rolling else ())
-        out.append(Problem(scene, obs, effects=fit_effects))
+        out.append(Problem(scene, obs, effects=fit_effects, engine=ENGINE))
     return out
 
 
@@ -95,7 +98,7 @@ def test_joint_loglik_is_the_sum_of_the_videos(problems, joint, joint_fit):
 
 
 def test_per_video_parameters_get_one_copy_per_video(problems):
-    probs = [Problem(p.scene, p.observation, effects=("initial_push",)) for p in problems]
+    probs = [Problem(p.scene, p.observation, effects=("initial_push",), engine=ENGINE) for p in problems]
     jp = JointProblem(probs)  # v0 (initial_push) is per-video by default
     assert jp.names == ("k1", "v0@0", "v0@1")
     assert jp.space.maps == ((0, 1), (0, 2))
@@ -148,7 +151,7 @@ def test_rolling_joint_fit_finds_mu_and_beats_sliding():
     roll = JointProblem(_problems(ROLL_ANGLES, MU, rolling=True, fit_effects=("rolling",)))
     r_roll = fit_grad(roll, jax.random.key(1), n_starts=1, n_screen=8, max_steps=10, polish_rounds=0)
     assert abs(r_roll.theta[0] - MU) < 0.01
-    slide = JointProblem([Problem(p.scene, p.observation) for p in roll.problems])
+    slide = JointProblem([Problem(p.scene, p.observation, engine=ENGINE) for p in roll.problems])
     grid = jnp.linspace(0.02, 0.6, 59)[:, None]
     ll_slide = np.asarray(slide.log_likelihood(slide.space.to_unconstrained(grid)))
     assert r_roll.loglik > ll_slide.max() + 400.0

@@ -222,7 +222,9 @@ def test_mh_interval_covers_truth_on_simulated_video():
 
     truth = PhysParams(jnp.array([0.6, 0.3]), jnp.array([0.2, 0.25]))
     obs = simulated_observation(SCENE2, truth, duration=1.5, position_sd=1e-3, seed=0)
-    prob = Problem(SCENE2, obs)
+    # on the C engine, the one fit picks on a CPU (cold: 60 s against 260 s on MJX; mh's kernel
+    # only sees the log density, whose engines agree in test_engines)
+    prob = Problem(SCENE2, obs, engine="mujoco")
     res = run_mh(prob, jax.random.key(0), n_warmup=160, n_samples=80, progress=False)
     summ = summarize_mh(res, prob.space)
     p = summ["parameters"]
