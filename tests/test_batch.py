@@ -13,6 +13,7 @@ screened starts, 20 LM steps, one polish round):
 
 import json
 import os
+import pickle
 import subprocess
 import sys
 import textwrap
@@ -42,15 +43,17 @@ FIT = dict(n_starts=2, n_screen=32, max_steps=20, polish_rounds=1, polish_points
 
 #: Run in a subprocess with two forced CPU devices: the batched screen + LM + Jacobian, sharded.
 SHARDED = textwrap.dedent("""
-    import json, sys
+    import json, pickle, sys
     import jax, numpy as np
     sys.path.insert(0, {tests!r})
     from galileo_jax.jaxcache import enable_compilation_cache
     enable_compilation_cache()
-    from test_batch import FIT, observations, scene
+    from test_batch import FIT, scene
     from galileo_jax.inference.batch import _pad_videos, batch_problems, solve_batch, stack_data, video_mesh
     from galileo_jax.inference.grad import latin_hypercube_starts
-    problems = batch_problems(scene(), observations(), engine="mujoco")
+    with open({observations!r}, "rb") as f:  # the parent's videos (simulating them again compiles MJX anew)
+        observations = pickle.load(f)
+    problems = batch_problems(scene(), observations, engine="mujoco")
     engine, data = stack_data(problems)
     mesh = video_mesh()
     z_cand = engine.space.to_unconstrained(latin_hypercube_starts(problems[0], jax.random.key(0), FIT["n_screen"]))
@@ -92,10 +95,12 @@ def test_batched_fit_matches_single_fits(batched):
         assert abs(res.theta[0] - k1) < 0.01 and abs(res.theta[1] - k2) < 0.05
 
 
-def test_sharded_over_two_devices_agrees(batched):
-    _, results = batched
+def test_sharded_over_two_devices_agrees(batched, tmp_path):
+    problems, results = batched
     env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS="--xla_force_host_platform_device_count=2")
-    code = SHARDED.format(tests=str(ROOT / "tests"))
+    path = tmp_path / "observations.pkl"
+    path.write_bytes(pickle.dumps([p.observation for p in problems]))
+    code = SHARDED.format(tests=str(ROOT / "tests"), observations=str(path))
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300,
                           cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]
