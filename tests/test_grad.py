@@ -71,8 +71,7 @@ def problem_c(problem):
 
 @pytest.mark.slow
 def test_grad_recovers_truth(problem_c):
-    problem = problem_c
-    res = fit_grad(problem, jax.random.key(0), n_starts=3, n_screen=32, max_steps=30)
+    res = fit_grad(problem_c, jax.random.key(0), n_starts=3, n_screen=32, max_steps=30)
     est = dict(zip(res.names, res.theta))
     assert abs(est["k1"] - TRUTH["k1"]) < 0.02
     assert abs(est["k2"] - TRUTH["k2"]) < 0.03
@@ -80,7 +79,7 @@ def test_grad_recovers_truth(problem_c):
     assert np.all(np.isfinite(res.sd)) and np.all(res.sd > 0)
     assert np.all((res.interval90[:, 0] <= res.theta) & (res.theta <= res.interval90[:, 1]))
     assert res.iterations > 0 and res.cost <= res.starts_cost.min() + 1e-9  # polish may only lower it
-    summ = summarize_grad(res, problem.space)
+    summ = summarize_grad(res, problem_c.space)
     p = summ["parameters"]
     assert set(p) == {"k1", "k2", "phi", "m1", "m2"}
     assert p["k1"]["mean"] == pytest.approx(est["k1"]) and p["k1"]["rhat"] is None
@@ -88,7 +87,7 @@ def test_grad_recovers_truth(problem_c):
     assert summ["diagnostics"]["jacobian"] == "fd"
     # simulated data with white noise and the model's own floor: no interval widened much
     assert res.inflation is not None and np.all(res.inflation >= 1.0) and np.all(res.inflation < 1.5)
-    assert set(summ["diagnostics"]["interval_widening"]) == set(problem.names)
+    assert set(summ["diagnostics"]["interval_widening"]) == set(problem_c.names)
 
 
 def test_grad_rejects_bad_arguments(problem):

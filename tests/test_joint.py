@@ -5,7 +5,8 @@ position noise, the default 8 physics substeps per frame (with 4, the sliding bo
 chatter at 35 degrees made log L jump by ~200 nats between k1 values 0.005 apart, and the
 fit stopped 0.027 from the truth). Problems are module-scoped so each rollout program
 compiles once, and run on the C engine, the one ``fit`` picks on a CPU (the joint code is the
-same for both engines; cold, this module took 512 s on MJX, 115 s on the C engine).
+same for both engines; cold, MJX's LM programs made this module take 512 s in the suite, and
+115 s alone on the C engine).
 
 Tolerance on the shared k1 (0.01): the Gauss-Newton SD of the joint k1 here is ~0.002
 (velocity SD per sample sqrt(0.042^2 + 0.05^2) m/s with the default model floor, 2 x 30
