@@ -29,8 +29,12 @@ import numpy as np  # noqa: E402
 FPS = 30.0
 #: Image sizes (width, height) in px by size class.
 SIZES = {"960x540": (960, 540), "320x240": (320, 240)}
-#: Sub-frames averaged per frame for motion blur ("on"), over half a frame interval.
-BLUR_SUBFRAMES = 5
+#: Sub-frames averaged per frame for motion blur ("on"), over half a frame interval. Poses between
+#: physics steps are interpolated (``Motion.qpos_at``), so at the fastest objects here (about
+#: 45 px a frame, 22 px over the exposure) the sub-frames lie under 1 px apart: a continuous
+#: streak, as a camera's. (Earlier benchmark runs used 5 sub-frames at the nearest
+#: physics step, which showed up to 5 copies of a fast object 4-5 px apart.)
+BLUR_SUBFRAMES = 24
 
 
 class Condition(NamedTuple):

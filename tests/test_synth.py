@@ -614,6 +614,20 @@ def test_motion_steps_hold_the_frames(motion, scene):
     np.testing.assert_allclose(np.ptp(times, axis=1), 0.5 * 3 / 4 / FPS)
     rest = motion.qpos_at(times[:REST])
     assert np.all(rest == motion.qpos[0])
+    # between two physics steps: positions on the straight line between them, unit quaternions
+    dt = 1.0 / (FPS * sub)
+    j = (motion.n_frames - REST) * sub // 2  # a step while object 1 moves
+    t = motion.release_time + (j + np.array([0.25, 0.5])) * dt
+    between = motion.qpos_at(t)
+    a, b = motion.steps[j], motion.steps[j + 1]
+    adr = motion.qpos_adr[0]
+    np.testing.assert_allclose(between[:, adr:adr + 3], [0.75 * a[adr:adr + 3] + 0.25 * b[adr:adr + 3],
+                                                          0.5 * (a[adr:adr + 3] + b[adr:adr + 3])], atol=1e-12)
+    assert np.linalg.norm(b[adr:adr + 3] - a[adr:adr + 3]) > 1e-4  # it does move in that step
+    np.testing.assert_allclose(np.linalg.norm(between[:, adr + 3:adr + 7], axis=-1), 1.0, atol=1e-12)
+    # sub-frames finer than the physics steps show distinct poses (a continuous streak, not copies)
+    fine = motion.qpos_at(motion.release_time + (j + np.linspace(0, 1, 5)) * dt)[:, adr]
+    assert np.all(np.diff(fine) != 0)
 
 
 def test_blurred_exposure_pixels_lie_on_the_subframe_path(world_video, motion, scene):
