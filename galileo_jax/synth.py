@@ -67,7 +67,7 @@ toward the camera) and with blur ``pixels_exposure`` (the mean projected centre 
 frame's exposure); see :func:`truth_record`::
 
     python -m galileo_jax.synth --scene scenes/ramp_20.yaml --m1 0.6 --k1 0.2 --m2 0.3 --k2 0.25 \\
-        --camera perspective --look plain --left --blur 5 --backdrop clutter --out out/world.mp4
+        --camera perspective --look plain --left --blur 20 --backdrop clutter --out out/world.mp4
 
 Hidden effects: ``--effect NAME=VALUE`` (repeatable) simulates a physical effect of
 :mod:`galileo_jax.effects` that the base model lacks, e.g. ``--effect quadratic_drag=0.9``
