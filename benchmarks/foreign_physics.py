@@ -60,6 +60,7 @@ def observation_of(motion, fps: float):
 
     pos = np.asarray(motion.positions, float)
     ft = np.arange(pos.shape[0]) / fps
+    # pixels: any fixed scale (the fit reads positions and the profile only)
     return Observation(frame_times=ft, positions=pos, pixels=pos * 1000.0, profile=profile_from_positions(pos, ft),
                        position_sd=np.full(2 * pos.shape[1], POSITION_SD), mask=np.ones(pos.shape[0] - 1, bool),
                        release_time=motion.release_time, fps=fps, moved=np.ones(pos.shape[1], bool))
@@ -137,8 +138,7 @@ def one_draw(effect: str, i: int) -> dict:
 
     t0 = time.perf_counter()
     rec = {"effect": effect, "draw": i, "hidden": {k: v for k, v in params.items() if k not in base},
-           "truth": base, "ramp_thickness_m": thickness,
-           }
+           "truth": base, "ramp_thickness_m": thickness}
     truth = {"k1": params["k1"], "k2": params["k2"], "phi": (params["m1"] - params["m2"]) / (params["m1"] + params["m2"]),
              **{k: v for k, v in params.items() if k not in base}}
     rec["ours_effect"] = fitted_rmse(stated, observed(stated, None, True), starts=[truth])[0]
