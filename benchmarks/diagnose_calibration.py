@@ -123,18 +123,15 @@ def realistic_effect_values(scene, effect: str, params: dict, rng: np.random.Gen
     return {param: value * (rng.choice([-1.0, 1.0]) if param == "dk_dv" else 1.0)}
 
 
-def render_foreign(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> tuple[Path, float]:
-    """Render video ``<work>/<effect>_<i>.mp4`` of the foreign family (module docstring), kept if
-    already there. Returns its path and the render time in s (nan when it was already there)."""
+def foreign_draw(scene, effect: str, i: int, seed: int):
+    """Draw i of ``effect`` in the foreign family (module docstring): the hidden effect, the
+    parameters with effect values of realistic size, and the world's physics (elliptic cone, a
+    board 10-20 mm thick). Returns ``(rng, effects, timing, params, world)``; ``rng`` goes on to
+    draw the video's look (:func:`render_foreign`)."""
     from galileo_jax.effects import get_effect
     from galileo_jax.model import WorldPhysics
-    from galileo_jax.scene import load_scene
-    from galileo_jax.synth import draw_informative_params, render_video
+    from galileo_jax.synth import draw_informative_params
 
-    video = work / f"{effect}_{i}.mp4"
-    if video.exists() and video.with_suffix(".truth.json").exists() and video.with_suffix(".yaml").exists():
-        return video, float("nan")
-    scene = load_scene(scene_path)
     rng = np.random.default_rng(seed * 1000 + i + 17 * len(effect) + 500_000)
     effects = () if effect == "none" else (get_effect(effect).name,)
     timing = dict(fps=FPS, rest_frames=round(0.3 * FPS), n_frames=int(round(DURATION * FPS)))
@@ -145,6 +142,20 @@ def render_foreign(scene_path: Path, effect: str, i: int, work: Path, seed: int)
     params = draw_informative_params(scene, rng, effects, fixed_effects={**provisional, **values}, **timing)
     params.update(realistic_effect_values(scene, effect, params, rng) if provisional else {})
     world = WorldPhysics(cone="elliptic", ramp_thickness=float(rng.uniform(0.01, 0.02)))
+    return rng, effects, timing, params, world
+
+
+def render_foreign(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> tuple[Path, float]:
+    """Render video ``<work>/<effect>_<i>.mp4`` of the foreign family (module docstring), kept if
+    already there. Returns its path and the render time in s (nan when it was already there)."""
+    from galileo_jax.scene import load_scene
+    from galileo_jax.synth import render_video
+
+    video = work / f"{effect}_{i}.mp4"
+    if video.exists() and video.with_suffix(".truth.json").exists() and video.with_suffix(".yaml").exists():
+        return video, float("nan")
+    scene = load_scene(scene_path)
+    rng, effects, _, params, world = foreign_draw(scene, effect, i, seed)
     t0 = time.perf_counter()
     render_video(scene, params, video, fps=FPS, duration=DURATION, width=640, height=360,
                  noise_sd=float(rng.uniform(1.5, 3.0)), hand=bool(i % 2), seed=seed + i, progress=False,

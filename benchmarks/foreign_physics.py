@@ -112,22 +112,13 @@ def one_draw(effect: str, i: int) -> dict:
     """Draw i of ``effect`` as the foreign family draws its videos; the fits above."""
     import diagnose_calibration as dc
 
-    from galileo_jax.effects import get_effect
-    from galileo_jax.model import WorldPhysics
     from galileo_jax.scene import load_scene
-    from galileo_jax.synth import draw_informative_params, resolve_params, simulate_motion
+    from galileo_jax.synth import resolve_params, simulate_motion
 
     scene = load_scene(dc.scene_for(effect, ROOT / "scenes" / "ramp_20.yaml"))  # the family's default scene
-    rng = np.random.default_rng(i + 17 * len(effect) + 500_000)  # render_foreign's draws (seed 0)
-    effects = (get_effect(effect).name,)
-    timing = dict(fps=dc.FPS, rest_frames=round(0.3 * dc.FPS), n_frames=int(round(dc.DURATION * dc.FPS)))
-    provisional = {"drag_quadratic": 0.05, "drag_linear": 0.1} if effect in ("quadratic_drag", "linear_drag") else {}
-    values = {} if provisional else dc.realistic_effect_values(scene, effect, {}, rng)
-    params = draw_informative_params(scene, rng, effects, fixed_effects={**provisional, **values}, **timing)
-    params.update(dc.realistic_effect_values(scene, effect, params, rng) if provisional else {})
-    thickness = float(rng.uniform(0.01, 0.02))
+    _, effects, timing, params, foreign = dc.foreign_draw(scene, effect, i, seed=0)  # its videos' draws
+    thickness = foreign.ramp_thickness
     stated = scene.model_copy(update={"ramp": scene.ramp.model_copy(update={"thickness": round(thickness, 3)})})
-    foreign = WorldPhysics(cone="elliptic", ramp_thickness=thickness)
     base = {k: params[k] for k in ("m1", "m2", "k1", "k2")}
 
     def observed(physics_scene, world, with_effect: bool):
