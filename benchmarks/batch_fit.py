@@ -40,8 +40,8 @@ def worker(n_videos: int, engine: str) -> dict:
     from galileo_jax.inference.batch import batch_problems, fit_grad_batch
     from galileo_jax.inference.grad import fit_grad
     from galileo_jax.inference.problem import simulated_observation
+    from galileo_jax.physics.simulate import PhysParams
     from galileo_jax.scene import load_scene
-    from galileo_jax.simulate import PhysParams
 
     scene = load_scene(ROOT / "scenes" / "ramp_20.yaml")
     rng = np.random.default_rng(0)

@@ -5,9 +5,9 @@ Renders videos of a scene (default ``scenes/ramp_20.yaml``, two boxes, 1.9 s at 
 effect with a value drawn from the effect's ``synth_range`` (or no effect), with random base
 parameters drawn as ``synth --random`` draws them (:func:`galileo_jax.synth.draw_informative_params`:
 object 1 slides and reaches object 2, or the floor), tracks them, runs
-:func:`galileo_jax.diagnosis.diagnose` with every applicable candidate, and records per video:
+:func:`galileo_jax.criticism.diagnosis.diagnose` with every applicable candidate, and records per video:
 the decision, whether the hidden effect was named first, and the base and final RMSE against
-two floors: the tracker's noise floor (what a user sees, :func:`galileo_jax.criticism.noise_floor`)
+two floors: the tracker's noise floor (what a user sees, :func:`galileo_jax.criticism.residuals.noise_floor`)
 and the *attainable* floor, the RMSE of the simulation at the true parameters (hidden effect
 included) against the tracked profile, on the engine the diagnosis fits that model on (C
 MuJoCo, the renderer's own, or MJX for effects that act every step, whose error against the
@@ -22,7 +22,7 @@ Two families of videos (``--family``):
 * ``foreign``: videos the model cannot reproduce exactly (:func:`render_foreign`): a perspective
   camera 1.8-2.6 m away whose scale file is exact only in the plane of the objects' centres
   (their tracked faces are 1-2% nearer), MuJoCo's elliptic friction cone, the ramp a board
-  10-20 mm thick with an edge at its foot (:class:`galileo_jax.model.WorldPhysics`), 640x360,
+  10-20 mm thick with an edge at its foot (:class:`galileo_jax.physics.model.WorldPhysics`), 640x360,
   pixel noise SD 1.5-3, the hand in every other video, either direction, and effects of the
   sizes real ones have (:func:`realistic_effect_values`). The scene file is the one a user would
   write (no calibration tolerance): diagnose's default calibration nuisances are what cope with
@@ -129,7 +129,7 @@ def foreign_draw(scene, effect: str, i: int, seed: int):
     board 10-20 mm thick). Returns ``(rng, effects, timing, params, world)``; ``rng`` goes on to
     draw the video's look (:func:`render_foreign`)."""
     from galileo_jax.effects import get_effect
-    from galileo_jax.model import WorldPhysics
+    from galileo_jax.physics.model import WorldPhysics
     from galileo_jax.synth import draw_informative_params
 
     rng = np.random.default_rng(seed * 1000 + i + 17 * len(effect) + 500_000)
@@ -180,7 +180,7 @@ def stated_scene(scene, family: str, truth: dict):
 
 def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family: str = "ours") -> dict:
     """Render (unless already rendered) and diagnose one video; the record written per video."""
-    from galileo_jax.diagnosis import DiagnoseSettings, diagnose
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, diagnose
     from galileo_jax.observe import observe, read_video
     from galileo_jax.scene import load_scene
 
@@ -241,9 +241,9 @@ def code_version() -> str:
 def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> float:
     """RMSE (m/s) of the simulation at the TRUE parameters (hidden effects included, true
     release time) against the tracked profile, on the engine ``diagnose`` fits that model on
-    (:func:`galileo_jax.diagnosis.model_engine`): the best any fit of the right model can do."""
-    from galileo_jax.criticism import profile_rmse
-    from galileo_jax.diagnosis import DiagnoseSettings, model_engine
+    (:func:`galileo_jax.criticism.diagnosis.model_engine`): the best any fit of the right model can do."""
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, model_engine
+    from galileo_jax.criticism.residuals import profile_rmse
     from galileo_jax.inference.problem import Problem
 
     problem = Problem(scene, obs, effects=effects, engine=model_engine([scene], effects, DiagnoseSettings()))

@@ -4,9 +4,9 @@ Issue 5, benchmark 2. Same machine, same run, same model (``scenes/ramp_20.yaml`
 dt = 1/240 s, ``--seconds`` of simulated time per rollout), same random parameters (masses
 in (0.1, 1) kg, k1 in (0.05, 0.3), k2 in (0.05, 0.6)). Per batch size B:
 
-* ``mjx``: ``jax.jit(jax.vmap(rollout))`` of :func:`galileo_jax.simulate.rollout`, the program
+* ``mjx``: ``jax.jit(jax.vmap(rollout))`` of :func:`galileo_jax.physics.simulate.rollout`, the program
   every fit runs (float64), timed after its compilation;
-* ``mujoco``: :func:`galileo_jax.simulate_c.rollout_poses_host`: B model copies with their
+* ``mujoco``: :func:`galileo_jax.physics.simulate_c.rollout_poses_host`: B model copies with their
   parameters, one ``mujoco.rollout`` over a thread pool of all cores (the C engine as ``fit
   --engine mujoco`` runs it, model copies included), and ``mujoco (in jit)``: the same through
   its ``jax.pure_callback`` inside ``jit(vmap)``, as the samplers call it.
@@ -38,8 +38,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 
 def _setup(seconds: float):
+    from galileo_jax.physics.simulate import make_simulator, steps_needed
     from galileo_jax.scene import load_scene
-    from galileo_jax.simulate import make_simulator, steps_needed
 
     sim = make_simulator(load_scene(ROOT / "scenes" / "ramp_20.yaml"), 30.0)
     return sim, steps_needed(sim, seconds)
@@ -59,7 +59,7 @@ def compile_time(seconds: float, batch: int) -> dict:
     import jax
 
     from galileo_jax.jaxcache import enable_compilation_cache
-    from galileo_jax.simulate import PhysParams, rollout
+    from galileo_jax.physics.simulate import PhysParams, rollout
 
     enable_compilation_cache()
     t0 = time.perf_counter()
@@ -81,8 +81,8 @@ def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
     import numpy as np
 
     from galileo_jax.inference.problem import map_batch
-    from galileo_jax.simulate import PhysParams, rollout
-    from galileo_jax.simulate_c import rollout_poses, rollout_poses_host
+    from galileo_jax.physics.simulate import PhysParams, rollout
+    from galileo_jax.physics.simulate_c import rollout_poses, rollout_poses_host
 
     sim, n = _setup(seconds)
     # One vmap of 4096 MJX rollouts deadlocks on this CPU (jaxlib 0.10.2: every thread idle, as

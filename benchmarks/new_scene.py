@@ -51,7 +51,7 @@ def run_scene(scene) -> dict:
 
     from galileo_jax.inference.grad import fit_grad
     from galileo_jax.inference.problem import Problem, simulated_observation
-    from galileo_jax.simulate import PhysParams
+    from galileo_jax.physics.simulate import PhysParams
 
     truth = PhysParams(jnp.asarray([1.0, 1.5]), jnp.asarray([0.15, 0.3]))
     obs = simulated_observation(scene, truth, fps=30.0, duration=1.5, release_time=0.1, seed=1)

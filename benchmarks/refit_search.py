@@ -3,8 +3,8 @@
 For rendered calibration videos (``benchmarks/diagnose_calibration.py``: the video, its scene
 ``.yaml`` and ``.truth.json`` in ``--videos-dir``, its diagnose record in
 ``benchmarks/results/diagnose_calibration/``), repeats diagnose's refit of the HIDDEN effect
-from the record's base estimate and screen (:func:`galileo_jax.diagnosis._refit_init`,
-:func:`galileo_jax.diagnosis.fit_model`), with the search, and reports the profile RMSE of
+from the record's base estimate and screen (:func:`galileo_jax.criticism.diagnosis._refit_init`,
+:func:`galileo_jax.criticism.diagnosis.fit_model`), with the search, and reports the profile RMSE of
 the LM-only refit in the record ('before') and of the new refit ('after') against the noise
 floor and the attainable RMSE (the MJX simulation at the true parameters). Issue 3's target:
 the RMSE with the effect added within 1.3x the noise floor. This measures the refit only; whether
@@ -42,7 +42,7 @@ def run_one(name: str, videos: Path) -> dict:
     """Refit ``name``'s hidden effect with the search; the record (dict) of before/after."""
     import jax
 
-    from galileo_jax.diagnosis import DiagnoseSettings, Union, _refit_init, candidate_effects, fit_model
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, Union, _refit_init, candidate_effects, fit_model
     from galileo_jax.effects import available_effects
     from galileo_jax.observe import observe, read_video
     from galileo_jax.scene import load_scene

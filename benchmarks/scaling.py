@@ -71,8 +71,8 @@ def make_problem(length: float, noise: float, engine: str = "mjx"):
     """The fit problem of a ``length`` s observation (MJX-simulated, ``noise`` m position noise),
     its rollouts on ``engine`` ("mjx" or "mujoco")."""
     from galileo_jax.inference import Problem, simulated_observation
+    from galileo_jax.physics.simulate import PhysParams
     from galileo_jax.scene import load_scene
-    from galileo_jax.simulate import PhysParams
 
     scene = load_scene(ROOT / "scenes" / "ramp_20.yaml")
     truth = PhysParams(np.array([TRUTH["m1"], TRUTH["m2"]]), np.array([TRUTH["k1"], TRUTH["k2"]]))

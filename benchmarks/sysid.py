@@ -18,11 +18,11 @@ both fit theta = (k1, k2, phi) and nothing else. Then:
   4 starts, the best of a 256-point screen; 40 steps), and from one given start.
 * ``sysid``: ``mujoco.sysid.optimize`` (shipped with mujoco 4.0.0; ``pip install
   "mujoco[sysid]"`` for its extra dependencies colorama, tabulate, plotly, ...) on the same
-  scene as a C MuJoCo model (:func:`galileo_jax.model.build_spec` plus two ``framepos``
+  scene as a C MuJoCo model (:func:`galileo_jax.physics.model.build_spec` plus two ``framepos``
   sensors on the objects' bodies). Parameters (``sysid.Parameter`` with MjSpec modifiers):
   k1 and k2 write both sliding columns of the object's contact pairs with the ramp and the
-  floor (the model carries friction in pairs, as :func:`galileo_jax.model.set_physics` and
-  :func:`galileo_jax.simulate.apply_params` do), and ``m1`` writes object 1's geom mass with
+  floor (the model carries friction in pairs, as :func:`galileo_jax.physics.model.set_physics` and
+  :func:`galileo_jax.physics.simulate.apply_params` do), and ``m1`` writes object 1's geom mass with
   object 2's fixed at 0.5 kg (the compiler then recomputes the inertia and ``invweight0``, as
   ``mj_setConst`` does); ``param=phi`` instead writes phi into both masses (total 1 kg). The
   measured data are a ``sysid.ModelSequences`` (no actuators: a zero-width control series
@@ -111,7 +111,7 @@ def load_fit_scene():
 
 def theta_to_phys(theta):
     """(k1, k2, phi) -> PhysParams with total mass 1 kg (the profile depends on the ratio only)."""
-    from galileo_jax.simulate import PhysParams
+    from galileo_jax.physics.simulate import PhysParams
 
     k1, k2, phi = (float(v) for v in theta)
     return PhysParams(np.array([0.5 * (1 + phi), 0.5 * (1 - phi)]), np.array([k1, k2]))
@@ -266,8 +266,8 @@ class SysidSetup:
         import mujoco
         from mujoco import sysid
 
-        from galileo_jax.model import build_spec
-        from galileo_jax.simulate import physics_timestep
+        from galileo_jax.physics.model import build_spec
+        from galileo_jax.physics.simulate import physics_timestep
 
         self.sysid = sysid
         self.obs = obs

@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.physics.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
 from galileo_jax.scene import load_scene
-from galileo_jax.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = PhysParams(jnp.array([[0.6, 0.3], [0.3, 0.6], [0.5, 0.5], [0.8, 0.2]]),

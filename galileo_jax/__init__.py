@@ -1,11 +1,13 @@
 """galileo_jax: infer physical properties of objects on an inclined plane from video.
 
-Pipeline (one module each):
+Pipeline, one subpackage (or module) per stage:
 
-    video --observe--> tracks --profile--> velocity profiles (observed)
-    scene --model--> MuJoCo model --simulate--> velocity profiles (simulated)
-    likelihood(observed, simulated) --inference (mh | grad)--> posterior / estimate
-    report (console, JSON, figures, overlay video, prediction)
+    video --observe/--> tracks --> velocity profiles (observation.py: observed, with noise)
+    scene.py --physics/--> MuJoCo model --> velocity profiles (simulated; effects/ extend it)
+    likelihood.py(observed, simulated) --inference/ (grad | mh | cnn)--> posterior / estimate
+    criticism/: residuals per phase, verdict; diagnose: which physical effect is missing
+    report/ (console, JSON, posterior.nc, figures, overlay video; predict.py)
+    command lines: fit.py, diagnose.py, train.py, synth.py, sweep/ (thin, over pipeline.py)
 
 Only the mass ratio phi = (m1 - m2) / (m1 + m2) is identifiable from velocities; the
 absolute mass scale is fixed only by a known mass in the scene file.

@@ -3,7 +3,7 @@
 Tracks the video like ``fit``, fits the base model, criticises it per motion phase, screens
 the candidate effects of :mod:`galileo_jax.effects` and refits the promising ones, then says
 which effect is missing (or that none is), how much the error falls when it is added, and
-whether the residuals then look like noise (:func:`galileo_jax.diagnosis.diagnose` explains
+whether the residuals then look like noise (:func:`galileo_jax.criticism.diagnosis.diagnose` explains
 the statistics).
 
 Several videos of one setup (``diagnose a.mp4 b.mp4 ...``) are diagnosed together: one set of
@@ -76,7 +76,7 @@ def effects_table() -> str:
 
 def summary_text(diag, videos: list[Path]) -> str:
     """Console report: base verdict, screen, refits with tests, decision, error before/after."""
-    from galileo_jax.diagnosis import ENGINE_NAMES
+    from galileo_jax.criticism.diagnosis import ENGINE_NAMES
 
     d = diag.decision
     what = ", ".join(f"{v.name} (scene {s.name})" for v, s in zip(videos, diag.scenes))
@@ -175,8 +175,8 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
     """
     import jax
 
-    from galileo_jax import criticism
-    from galileo_jax.diagnosis import ENGINE_NAMES, base_loglik_by_engine
+    from galileo_jax.criticism import residuals as criticism
+    from galileo_jax.criticism.diagnosis import ENGINE_NAMES, base_loglik_by_engine
     from galileo_jax.report.figures import model_comparison_figure, profile_figure, residual_figure
     from galileo_jax.report.results import package_versions, write_json
 
@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.alpha < 1:
         raise GalileoError(f"--alpha must be between 0 and 1, got {args.alpha}")
     inputs = videos_and_scenes(args.videos, args.scene)
-    from galileo_jax.diagnosis import DiagnoseSettings, candidate_effects, diagnose
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, candidate_effects, diagnose
     from galileo_jax.effects import resolve_effects
 
     names = None if args.effects is None else tuple(e.name for e in resolve_effects(args.effects))

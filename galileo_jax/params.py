@@ -52,9 +52,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS
+from galileo_jax.physics.model import NOMINAL_FRICTION, NOMINAL_MASS
+from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import PhysParams
 
 #: Reference total mass (kg) used to turn phi into masses for the simulator when no mass is
 #: known; the simulated dynamics depend on the masses only through their ratio.

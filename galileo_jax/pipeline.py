@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from galileo_jax import criticism
+from galileo_jax.criticism import residuals as criticism
 from galileo_jax.calibration import calibration
 from galileo_jax.config import FitConfig
 from galileo_jax.errors import GalileoError
@@ -264,7 +264,7 @@ def fit_engine(scene: Scene, cfg: FitConfig) -> str:
     """The simulation engine of a fit of ``scene`` (:func:`~galileo_jax.config.resolve_engine`
     with the scene's own effects and ``cfg.effects``)."""
     from galileo_jax.config import resolve_engine
-    from galileo_jax.simulate import scene_effects
+    from galileo_jax.physics.simulate import scene_effects
 
     return resolve_engine(cfg, scene_effects(scene, cfg.effects))
 

@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from galileo_jax.physics.simulate import PhysParams, Simulator, rollout, steps_needed
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import PhysParams, Simulator, rollout, steps_needed
 
 #: Speed (m/s) below which an object counts as at rest.
 REST_SPEED = 0.01

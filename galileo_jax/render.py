@@ -21,7 +21,7 @@ right, v down; the optical axis passes through (W/2 - 1/2, H/2 - 1/2).
 
 Everything added here is visual only (``contype = conaffinity = 0``, static world geoms or a
 mocap body without joints): the physics of the model is unchanged, and the qpos layout is the
-same as :func:`galileo_jax.model.build_model`'s.
+same as :func:`galileo_jax.physics.model.build_model`'s.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 
 from galileo_jax.effects import resolve_effects  # noqa: E402
 from galileo_jax.errors import GalileoError  # noqa: E402
-from galileo_jax.model import OBJECT_COLOURS, build_spec, object_start_pose  # noqa: E402
+from galileo_jax.physics.model import OBJECT_COLOURS, build_spec, object_start_pose  # noqa: E402
 from galileo_jax.scene import Camera, Scene  # noqa: E402
 
 #: Name of the render camera added to the model.
@@ -550,7 +550,7 @@ def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = F
         colours: (n_objects, 3) base RGB in [0, 1], or None (:func:`object_colours`).
         backdrop: ``"plain"`` (grey gradient wall) or ``"clutter"`` (:func:`clutter_texture`).
         seed: seed of the cluttered backdrop.
-        world: physics the model does not have (:class:`~galileo_jax.model.WorldPhysics`): a
+        world: physics the model does not have (:class:`~galileo_jax.physics.model.WorldPhysics`): a
             ramp board is drawn as the box it is.
 
     Returns:

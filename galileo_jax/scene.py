@@ -167,7 +167,7 @@ class Camera(_Strict):
     the fit then carries a nuisance ``scale_error`` uniform on +-tolerance, the observed
     displacements being (1 + scale_error) times the true ones (0: the scale is exact). Unset
     (None), ``fit`` takes the scale as exact and ``diagnose`` allows its own default
-    (:attr:`galileo_jax.diagnosis.DiagnoseSettings.scale_tolerance`, 3%): a few-percent scale
+    (:attr:`galileo_jax.criticism.diagnosis.DiagnoseSettings.scale_tolerance`, 3%): a few-percent scale
     error is as large as the effects it looks for. With a perspective camera the tracked
     surface (an object's front face) is nearer the camera than the plane of the objects'
     centres, where the scale is measured; for motion parallel to the image that too is a

@@ -19,11 +19,11 @@ Timeline: frame k is shown at t_k = k / fps, k = 0..N-1. The objects rest at the
 poses (optionally held by a hand) for ``rest_frames`` frames and are released at
 ``release_time = rest_frames / fps``; frame k >= rest_frames shows the state after
 (k - rest_frames) * substeps physics steps of dt = 1 / (fps * substeps), the timestep of
-:func:`galileo_jax.simulate.physics_timestep`. This is the sampling of
-:func:`galileo_jax.simulate.velocity_profile` with the same ``frame_times`` and
+:func:`galileo_jax.physics.simulate.physics_timestep`. This is the sampling of
+:func:`galileo_jax.physics.simulate.velocity_profile` with the same ``frame_times`` and
 ``release_time``, so the MJX simulator and the video can be compared sample by sample.
 
-Masses and frictions are set as :func:`galileo_jax.simulate.apply_params` sets them in MJX:
+Masses and frictions are set as :func:`galileo_jax.physics.simulate.apply_params` sets them in MJX:
 ``body_mass``, ``body_inertia`` scaled with the mass, ``pair_friction[:, 0:2]`` of each
 object's pairs with the ramp and floor, then ``mj_setConst`` recomputes ``invweight0``.
 
@@ -128,9 +128,9 @@ from galileo_jax.effects.runtime import (apply_c_model, c_step, effect_param_nam
                                          surface_frictions)
 from galileo_jax.cli import OneLineParser  # noqa: E402
 from galileo_jax.errors import GalileoError, SceneError, cli_entry  # noqa: E402
-from galileo_jax.model import ModelIndex, WorldPhysics, build_model, object_start_pose, set_physics  # noqa: E402
+from galileo_jax.physics.model import ModelIndex, WorldPhysics, build_model, object_start_pose, set_physics  # noqa: E402
 from galileo_jax.scene import Scene, Video, load_scene, save_scene  # noqa: E402
-from galileo_jax.simulate import PhysParams, physics_timestep, scene_effects  # noqa: E402
+from galileo_jax.physics.simulate import PhysParams, physics_timestep, scene_effects  # noqa: E402
 
 #: Default seconds at rest (held) before release.
 REST_SECONDS = 0.3
@@ -566,14 +566,14 @@ def simulate_motion(scene: Scene, params: PhysParams, fps: float, rest_frames: i
         effect_values: the effects' parameter values: a flat vector ordered as
             :func:`~galileo_jax.effects.runtime.effect_param_names`, or a dict by parameter
             name; ``None``: ``params.effects``, else the neutral values.
-        world: physics the fitted model does not have (:class:`~galileo_jax.model.WorldPhysics`:
+        world: physics the fitted model does not have (:class:`~galileo_jax.physics.model.WorldPhysics`:
             elliptic friction cones, a ramp board with an edge); ``None``: the model's own.
 
     With effects, the model is built with their ``build`` hooks, masses and frictions are set
     as without, and at release the effects' model updates and release velocities are applied
     (:func:`~galileo_jax.effects.runtime.apply_c_model`); then every physics step goes through
     :func:`~galileo_jax.effects.runtime.c_step` (forces through ``xfrc_applied``, per-step
-    friction), the physics of the MJX rollout (:func:`galileo_jax.simulate.rollout`).
+    friction), the physics of the MJX rollout (:func:`galileo_jax.physics.simulate.rollout`).
 
     Returns:
         :class:`Motion`, with the state after every physics step in ``steps`` (for motion
@@ -821,7 +821,7 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
     in orthographic views) and, when ``blur`` >= 2, ``pixels_exposure`` (N x n_objects x
     [u, v]: the mean over each frame's sub-frames of the projected centre, what the centroid
     of a blurred image sees), ``world`` ({``cone``, ``ramp_thickness`` (m)}: the physics the
-    fitted model does not have, :class:`~galileo_jax.model.WorldPhysics`).
+    fitted model does not have, :class:`~galileo_jax.physics.model.WorldPhysics`).
 
     ``effects``: the simulated effects (names or Effects, the scene's own included), in the
     order of ``params.effects``. ``colours``: as :func:`galileo_jax.render.object_colours`.
@@ -950,7 +950,7 @@ def render_video(scene: Scene, params, out_path, *, fps: float = 30.0, duration:
             :meth:`Motion.qpos_at`) and average them; 0 (or 1): none.
         shutter: exposure time as a fraction of the frame interval (with ``blur``).
         backdrop: ``"plain"`` (grey wall) or ``"clutter"`` (posters, shelves, cables, blobs).
-        world: physics the fitted model does not have (:class:`~galileo_jax.model.WorldPhysics`:
+        world: physics the fitted model does not have (:class:`~galileo_jax.physics.model.WorldPhysics`:
             elliptic friction cones, a ramp board of some thickness with an edge at its foot),
             simulated and drawn; the written scene file does not know of it. ``None``: the
             model's own physics.

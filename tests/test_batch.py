@@ -27,8 +27,8 @@ import pytest
 from galileo_jax.inference.batch import batch_problems, fit_grad_batch, stack_data
 from galileo_jax.inference.grad import fit_grad
 from galileo_jax.inference.problem import Problem, simulated_observation
+from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = {

@@ -21,8 +21,8 @@ from galileo_jax.inference import cnn
 from galileo_jax.inference.problem import simulated_observation
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
+from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import load_scene
-from galileo_jax.simulate import PhysParams
 from galileo_jax.train import TrainConfig, make_train_step, setup, train
 
 SCENE = load_scene("scenes/ramp_20.yaml")

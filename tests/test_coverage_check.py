@@ -33,8 +33,8 @@ import pytest
 
 from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
 from galileo_jax.inference.problem import Problem, simulated_observation
+from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from coverage import truth_record  # noqa: E402

@@ -1,4 +1,4 @@
-"""Model criticism (galileo_jax.criticism) and its figures, on synthetic arrays (no MuJoCo).
+"""Model criticism (galileo_jax.criticism.residuals) and its figures, on synthetic arrays (no MuJoCo).
 
 The synthetic "fit": a hand-made two-box trajectory (object 1 accelerates down a 20 degree
 ramp, crosses the foot at x = 0, hits object 2 on the floor; object 2 slides and stops). The
@@ -17,7 +17,7 @@ import re
 import numpy as np
 import pytest
 
-from galileo_jax import criticism as C
+from galileo_jax.criticism import residuals as C
 from galileo_jax.observation import Observation, profile_from_positions
 from galileo_jax.report.figures import model_comparison_figure, residual_figure
 
@@ -394,7 +394,7 @@ def test_base_loglik_by_engine():
     other engine in round 1, after its null refit where that improved it."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import base_loglik_by_engine
+    from galileo_jax.criticism.diagnosis import base_loglik_by_engine
 
     base = SimpleNamespace(name="base", loglik=-245.7, union=SimpleNamespace(engine="mujoco"))
     transfers = [{"model": "base", "engine": "mjx", "loglik": -2385.2}]

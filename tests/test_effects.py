@@ -29,8 +29,8 @@ from galileo_jax.effects.library import SOLREF_TIMECONST, restitution_solref
 from galileo_jax.effects.runtime import neutral_values
 from galileo_jax.errors import GalileoError
 from galileo_jax.inference.screen import lr_pvalue, score_test, vuong_test
+from galileo_jax.physics.simulate import PhysParams, make_simulator, rollout, steps_needed, velocity_profile
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams, make_simulator, rollout, steps_needed, velocity_profile
 
 G = 9.81
 
@@ -192,7 +192,7 @@ def test_velocity_friction_matches_closed_form_around_its_reference_speed():
 
 
 def test_screen_differences_skip_rollouts_that_blew_up():
-    from galileo_jax.diagnosis import finite_difference
+    from galileo_jax.criticism.diagnosis import finite_difference
 
     res = np.array([[1.0, 2.0], [1.5, 2.5], [0.5, 1.0], [np.nan, 1.0]])  # rows: current, +h, -h, broken
     assert np.allclose(finite_difference(res, 1, 2, 0.5), [1.0, 1.5])  # central
@@ -241,8 +241,8 @@ CUBIC = Effect(
 
 @pytest.mark.slow
 def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, base_loglik_by_engine, diagnose
     from galileo_jax.diagnose import write_outputs
-    from galileo_jax.diagnosis import DiagnoseSettings, base_loglik_by_engine, diagnose
     from galileo_jax.inference.problem import simulated_observation
 
     register_effect(CUBIC, replace=True)
@@ -326,7 +326,7 @@ def test_adequacy_check_leaves_out_contact_events_but_not_what_follows_them():
     still count."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import GATE_JUMP, calm_masks, calm_rmse
+    from galileo_jax.criticism.diagnosis import GATE_JUMP, calm_masks, calm_rmse
 
     rng = np.random.default_rng(3)
     n = 60
@@ -352,7 +352,7 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     """``Effect.search_restarts``: restitution's refits run several CMA-ES searches, alternating
     between LM's end and a global screen's fit, and keep the best point of all; an effect
     without restarts gets one search. (Cheap: a one-object C MuJoCo union, 2 generations of 8.)"""
-    from galileo_jax import diagnosis as D
+    from galileo_jax.criticism import diagnosis as D
     from galileo_jax.inference import search as S
     from galileo_jax.inference.problem import simulated_observation
 
@@ -393,7 +393,7 @@ def test_nested_refit_never_tests_below_the_null():
     value with the reason."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import DiagnoseSettings, ModelFit, test_effect
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, ModelFit, test_effect
 
     effect = available_effects()["quadratic_drag"]
     name = effect.params[0].name
@@ -423,7 +423,7 @@ def test_alternatives_are_refitted_from_an_improved_null():
     around the old null is refitted from the new one: its refit starts, among others, at the
     null's point with the effect neutral, so it ends no lower than the null, where the stuck
     alternative was far below. (Cheap: a one-object C MuJoCo union without a hidden effect.)"""
-    from galileo_jax import diagnosis as D
+    from galileo_jax.criticism import diagnosis as D
     from galileo_jax.inference.problem import simulated_observation
 
     scene = _scene(two=False, start=1.0)
@@ -457,8 +457,8 @@ def test_diagnose_fits_a_scale_error_before_blaming_physics():
     the diagnosis finds the scale error and no missing effect, and its report says how large
     the scale error came out; taking the scale as exact (tolerance 0), the misfit is blamed on
     a physical effect. (C MuJoCo, one object sliding onto the floor, short searches.)"""
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, diagnose
     from galileo_jax.diagnose import summary_text
-    from galileo_jax.diagnosis import DiagnoseSettings, diagnose
     from galileo_jax.inference.problem import simulated_observation
 
     scene = _scene(two=False, start=0.5)
@@ -491,7 +491,7 @@ def test_a_ramp_friction_is_mimicked_by_its_equivalent_ramp_angle_error():
     0.5 mm over 0.6 s; the report says whether delta is within the angle tolerance."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import angle_alternative, equivalent_angle_error
+    from galileo_jax.criticism.diagnosis import angle_alternative, equivalent_angle_error
     from galileo_jax.synth import resolve_params, simulate_motion
 
     k, dk = 0.2, -0.06
@@ -521,7 +521,7 @@ def test_a_stuck_base_fit_is_fitted_again_before_effects_are_screened(monkeypatc
     fitted once more from twice the starts before any effect is screened, so a clean video gets
     "no missing effect" without refitting candidates; without the retry the candidates are
     screened and refitted. (C MuJoCo, one object, short searches.)"""
-    from galileo_jax import diagnosis as D
+    from galileo_jax.criticism import diagnosis as D
     from galileo_jax.inference.problem import simulated_observation
 
     scene = _scene(two=False, start=0.5)
@@ -553,7 +553,7 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     an unexplained misfit, not as "no missing effect"; at 1.1x the floor it is "no missing effect"."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import _decision
+    from galileo_jax.criticism.diagnosis import _decision
 
     def fits(rmse):
         return [SimpleNamespace(name="base", rmse=rmse, criticism={"verdict": "fails on the ramp"})]
@@ -585,7 +585,7 @@ def test_no_refit_when_nothing_points_at_an_effect():
     residuals, a larger misfit, a structural candidate or quiet_p 0 -> refits run."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import DiagnoseSettings, _decision, quiet
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, _decision, quiet
 
     settings = DiagnoseSettings()
     noisy = SimpleNamespace(name="base", rmse=0.0082, criticism={"looks_like_noise": True})
@@ -614,7 +614,7 @@ def test_adequate_improved_null_does_not_wave_through_a_clear_gain():
     (supported fits 5-6% above the improved model: the adequate exit stands)."""
     from types import SimpleNamespace
 
-    from galileo_jax.diagnosis import DiagnoseSettings, clear_gain
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, clear_gain
 
     settings = DiagnoseSettings()
     drag = SimpleNamespace(rmse=0.0080)

@@ -18,8 +18,8 @@ from galileo_jax.effects import resolve_effects
 from galileo_jax.errors import GalileoError
 from galileo_jax.inference.grad import fit_grad
 from galileo_jax.inference.problem import Problem, simulated_observation
+from galileo_jax.physics.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
 from galileo_jax.scene import load_scene
-from galileo_jax.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
 
 SCENE = load_scene("scenes/ramp_20.yaml")
 FRAMES = jnp.arange(61) / 30.0

@@ -19,8 +19,8 @@ from galileo_jax.inference.grad import fit_grad
 from galileo_jax.inference.problem import Problem, cached_jit, fd_jacobian_fn, simulated_observation
 from galileo_jax.inference.summary import summarize_grad
 from galileo_jax.params import ParamSpace
+from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams
 
 SCENE2 = scene_from_dict({
     "name": "ramp_20", "ramp": {"angle_deg": 20, "length": 0.6},

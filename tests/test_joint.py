@@ -22,8 +22,8 @@ import pytest
 from galileo_jax.inference.grad import fit_grad
 from galileo_jax.inference.joint import JointProblem
 from galileo_jax.inference.problem import Problem, simulated_observation
+from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams
 
 K1 = 0.25
 MU = 0.3  # rolling test: pipe-board friction

@@ -14,7 +14,7 @@ from galileo_jax.likelihood import make_likelihood
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams
+from galileo_jax.physics.simulate import PhysParams
 
 BOX1 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.45}
 BOX2 = {"shape": "box", "size": [0.08, 0.06, 0.04], "start": 0.15}

@@ -21,7 +21,7 @@ import pytest
 
 from galileo_jax.calibration import calibration
 from galileo_jax.errors import TrackingError, VideoError
-from galileo_jax.model import object_start_pose
+from galileo_jax.physics.model import object_start_pose
 from galileo_jax.observation import profile_from_positions
 from galileo_jax.observe import (clip_from_frames, estimate_noise_sd, find_objects, object_windows, observe,
                                  read_video, track_objects)

@@ -20,8 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from galileo_jax.physics.simulate import PhysParams, make_simulator, rollout, steps_needed, velocity_profile
 from galileo_jax.scene import scene_from_dict
-from galileo_jax.simulate import PhysParams, make_simulator, rollout, steps_needed, velocity_profile
 
 G = 9.81
 THETA = math.radians(20.0)

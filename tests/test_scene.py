@@ -10,7 +10,7 @@ import yaml
 
 from galileo_jax.calibration import calibration
 from galileo_jax.errors import SceneError
-from galileo_jax.model import build_model, object_start_pose
+from galileo_jax.physics.model import build_model, object_start_pose
 from galileo_jax.scene import load_scene, scene_from_dict
 
 
@@ -67,7 +67,7 @@ def test_a_ramp_board_stated_in_the_scene_is_the_board_the_renderer_draws():
     thickness gives the same motion exactly, and bad values or a cylinder on a board (MJX cannot
     collide a cylinder with a box) are rejected naming the key."""
     from galileo_jax import synth
-    from galileo_jax.model import WorldPhysics
+    from galileo_jax.physics.model import WorldPhysics
 
     d = base()
     d["ramp"]["thickness"] = 0.015

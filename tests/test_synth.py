@@ -47,10 +47,10 @@ from galileo_jax.calibration import calibration
 from galileo_jax.effects import get_effect
 from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
-from galileo_jax.model import WorldPhysics, model_index
 from galileo_jax.observation import profile_from_positions
+from galileo_jax.physics.model import WorldPhysics, model_index
+from galileo_jax.physics.simulate import PhysParams, make_simulator, scene_effects, steps_needed, velocity_profile
 from galileo_jax.scene import load_scene, scene_from_dict
-from galileo_jax.simulate import PhysParams, make_simulator, scene_effects, steps_needed, velocity_profile
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ramp_20.yaml"
 PARAMS = {"m1": 0.6, "k1": 0.2, "m2": 0.3, "k2": 0.25}

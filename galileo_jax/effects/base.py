@@ -20,7 +20,7 @@ code runs inside the jitted MJX rollout and, on NumPy inputs, in the C MuJoCo re
   arrays named as in ``mujoco.MjModel``/``mjx.Model``, e.g. ``pair_solref``); ``fields`` already
   hold the rollout's masses and friction coefficients. Effects with only ``model``,
   ``initial_velocity``, ``build`` and ``release_delay`` hooks also run on the C MuJoCo engine,
-  which evaluates the hooks in JAX before the host rollout (:mod:`galileo_jax.simulate_c`).
+  which evaluates the hooks in JAX before the host rollout (:mod:`galileo_jax.physics.simulate_c`).
 * ``initial_velocity(values, ctx)``: (n_objects, 3) world linear velocity added at release, m/s.
 * ``force(state, values, ctx)``: (n_objects, 3) world force on each object's centre of mass
   in N, applied every physics step through ``xfrc_applied``.
@@ -77,7 +77,7 @@ class EffectContext:
     """Facts about the scene an effect may use.
 
     ``ramp_angle``, ``gravity`` and ``downhill`` are numbers of the scene: inside a compiled
-    program they are traced arrays (:meth:`~galileo_jax.simulate.Simulator.with_arrays`), so
+    program they are traced arrays (:meth:`~galileo_jax.physics.simulate.Simulator.with_arrays`), so
     hooks use ``jnp`` on them, never ``math``. The other fields are static Python values.
 
     Attributes:
@@ -150,7 +150,7 @@ class Effect:
             effects the data cannot tell apart).
         source: where the formula comes from.
         search_restarts: independent CMA-ES searches of a ``diagnose`` refit that frees this
-            effect (:func:`galileo_jax.diagnosis.search_then_lm`; 1 for a likelihood with one
+            effect (:func:`galileo_jax.criticism.diagnosis.search_then_lm`; 1 for a likelihood with one
             basin to find, more where it is multimodal, e.g. at impacts).
         applies: ``scene -> None`` if the effect can act in the scene, else a reason (str).
         build, model, initial_velocity, force, friction, release_delay: hooks (module docstring).

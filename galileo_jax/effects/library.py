@@ -20,7 +20,7 @@ How each acts in the simulator: quadratic drag and velocity-dependent friction e
 step (a force through ``xfrc_applied``, a friction hook), so they need the MJX engine; linear
 drag as joint damping, restitution as the impact's ``solref``, ramp friction as the ramp pairs'
 friction (model fields, once per rollout), initial push as a release velocity and rolling as a
-change of the model's structure: these run on C MuJoCo too (:mod:`galileo_jax.simulate_c`).
+change of the model's structure: these run on C MuJoCo too (:mod:`galileo_jax.physics.simulate_c`).
 
 (a) In a fit, the pushed object leaves ``v0 / a`` (a = g (sin theta - k1 cos theta), smoothly
 capped at 0.15 s) after the fitted release time: the release time keeps its base-model meaning (when a

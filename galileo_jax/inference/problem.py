@@ -10,10 +10,10 @@ Code and data are kept apart, so that one compiled program serves many videos:
   functions of the problem, ``f(z, data)``; they never read an observation.
 * :class:`ProblemData` is the video-dependent part, a pytree of arrays (frame times,
   release time, the :class:`~galileo_jax.likelihood.Likelihood` with the observed profile and
-  its whitening, and the scene's own numbers, :class:`~galileo_jax.simulate.SimArrays`),
+  its whitening, and the scene's own numbers, :class:`~galileo_jax.physics.simulate.SimArrays`),
   passed INTO the jitted functions as an argument.
 
-Every :class:`Problem` of the same scene structure (:func:`~galileo_jax.simulate.structure_key`:
+Every :class:`Problem` of the same scene structure (:func:`~galileo_jax.physics.simulate.structure_key`:
 the objects, their shapes and contacts, not the ramp angle, lengths, start positions or
 sizes), effects and (bucketed) video length shares one set of jitted functions (module-level
 caches), so a second video, even of a new scene, costs no tracing or compilation in the same
@@ -51,7 +51,7 @@ from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, Likelihood, m
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import (PhysParams, SimArrays, Simulator, make_simulator, rollout, sample_poses,
+from galileo_jax.physics.simulate import (PhysParams, SimArrays, Simulator, make_simulator, rollout, sample_poses,
                                   scene_effects, steps_needed, structure_key, velocity_profile)
 
 #: Default central-difference step in unconstrained coordinates z (see inference/grad.py for
@@ -148,7 +148,7 @@ class ProblemData(NamedTuple):
         frame_times: (M + 1,) frame times in s (padded past the video's end at 1 / fps).
         release_time: () video time in s at which the objects are released.
         likelihood: the observation's :class:`~galileo_jax.likelihood.Likelihood`, length M.
-        physics: the scene's :class:`~galileo_jax.simulate.SimArrays` (None: the engine's own
+        physics: the scene's :class:`~galileo_jax.physics.simulate.SimArrays` (None: the engine's own
             scene; only for callers that jit an engine's functions themselves).
     """
 
@@ -260,7 +260,7 @@ def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_bat
                engine: str = "mjx") -> Engine:
     """The shared :class:`Engine` for these settings (built once per process and key); its
     rollouts cover ``seconds`` after the release plus the release-time window, on the
-    simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.simulate.make_simulator`)."""
+    simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.physics.simulate.make_simulator`)."""
     early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
     length = _blocks(seconds + early, fps)
     settings = (float(fps), tuple(effects), int(max_batch), engine)

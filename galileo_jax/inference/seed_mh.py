@@ -33,8 +33,8 @@ import numpy as np
 
 from galileo_jax.inference.problem import map_batch
 from galileo_jax.likelihood import make_likelihood
-from galileo_jax.model import NOMINAL_MASS
-from galileo_jax.simulate import PhysParams
+from galileo_jax.physics.model import NOMINAL_MASS
+from galileo_jax.physics.simulate import PhysParams
 
 #: The seed's settings (dissertation 4.2.5).
 SEED_CHAINS, SEED_STEPS, SEED_WIDTH, SEED_WIDE, SEED_WIDE_EVERY = 16, 75, 0.05, 0.5, 20

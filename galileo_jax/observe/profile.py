@@ -2,7 +2,7 @@
 
 * Metres: each object's track is converted with the scene's camera calibration, anchored so
   that its start pixel maps to its start position in the scene (world x and vertical of
-  :func:`galileo_jax.model.object_start_pose`); only displacements come from the video.
+  :func:`galileo_jax.physics.model.object_start_pose`); only displacements come from the video.
 * Velocity profile: differences of consecutive positions over the frame interval
   (dissertation 4.2.3, :func:`galileo_jax.observation.profile_from_positions`).
 * Noise: :func:`estimate_noise_sd`, per position trace, from the data.
@@ -18,12 +18,12 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from galileo_jax.calibration import calibration
-from galileo_jax.model import object_start_pose
 from galileo_jax.observation import Observation, TrackingInfo, profile_from_positions
 from galileo_jax.observe.find import locate_objects, never_moves_error
 from galileo_jax.observe.track import SceneTracks, track_scene
 from galileo_jax.observe.tracks import QUALITY_MIN, Tracks, background_model, estimate_noise_sd, path_direction
 from galileo_jax.observe.video import VideoClip, read_video
+from galileo_jax.physics.model import object_start_pose
 from galileo_jax.scene import Scene
 
 #: Smallest position noise SD reported, in px (a perfect, noiseless track would otherwise

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from galileo_jax.calibration import Calibration
-from galileo_jax.model import object_start_pose
+from galileo_jax.physics.model import object_start_pose
 from galileo_jax.scene import Scene
 
 

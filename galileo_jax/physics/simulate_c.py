@@ -1,6 +1,6 @@
 """The C MuJoCo engine: batched rollouts of the scene through MuJoCo's native ``mujoco.rollout``.
 
-Same scene, same model and same parameters as the MJX rollout (:func:`galileo_jax.simulate.rollout`),
+Same scene, same model and same parameters as the MJX rollout (:func:`galileo_jax.physics.simulate.rollout`),
 but stepped by C MuJoCo on a thread pool. On this project's CPU (2 cores) it runs the ramp
 scene far faster than MJX's ``jit(vmap(scan))`` (``benchmarks/engines.py``), so the
 gradient-free methods use it by default on CPU (``fit --engine mujoco``); MJX stays for
@@ -14,11 +14,11 @@ finite-difference Jacobian and the likelihood run unchanged inside ``jit``. It h
 derivative: differentiating through it raises (use the MJX engine for ``jacobian: ad``).
 
 Per rollout b, a copy of the compiled model gets the masses and frictions as
-:func:`galileo_jax.simulate.apply_params` sets them in MJX (``body_mass``, ``body_inertia``
+:func:`galileo_jax.physics.simulate.apply_params` sets them in MJX (``body_mass``, ``body_inertia``
 x m/m0, ``pair_friction``; ``mj_setConst`` recomputes the invweights, as
-:func:`galileo_jax.model.set_physics` does for the renderer), then the effects' model updates
+:func:`galileo_jax.physics.model.set_physics` does for the renderer), then the effects' model updates
 and release velocities. Those are evaluated by the effects' own hooks in JAX, inside ``jit``,
-before the callback (:func:`galileo_jax.simulate.rollout`), and reach the host as arrays:
+before the callback (:func:`galileo_jax.physics.simulate.rollout`), and reach the host as arrays:
 the host code runs no JAX (JAX called from inside a host callback can deadlock). Effects that
 act every step (forces, velocity-dependent friction) need a state-dependent input that an
 open-loop ``mujoco.rollout`` cannot take: :func:`check_supported` rejects them.
@@ -37,7 +37,7 @@ from mujoco import rollout as mj_rollout
 
 from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
-from galileo_jax.model import object_poses, set_physics
+from galileo_jax.physics.model import object_poses, set_physics
 
 #: Engines a simulator can run on.
 ENGINES = ("mjx", "mujoco")
@@ -67,7 +67,7 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = 
     """One C model per rollout with its parameters set, and the initial states.
 
     Args:
-        sim: a :class:`~galileo_jax.simulate.Simulator`.
+        sim: a :class:`~galileo_jax.physics.simulate.Simulator`.
         mass: (B, n_objects) masses in kg.
         friction: (B, n_objects) friction coefficients.
         fields: optional {model field name: (B, ...) values} written after the masses and
@@ -108,7 +108,7 @@ def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int
 
     Returns:
         (B, n_steps + 1, n_objects, 3) poses: centre x, z (m) and pitch about y (rad), as
-        :class:`~galileo_jax.simulate.Trajectory` holds them; non-finite where a rollout diverged.
+        :class:`~galileo_jax.physics.simulate.Trajectory` holds them; non-finite where a rollout diverged.
     """
     if mass.shape[0] > MAX_CALL:  # see MAX_CALL
         def part(a, i):
@@ -135,7 +135,7 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
         mass, friction: (n_objects,).
         n_steps: physics steps (static).
         fields: optional {model field name: array of the field's shape}, the effects' model
-            updates for this rollout, computed in JAX (:func:`galileo_jax.simulate.rollout`).
+            updates for this rollout, computed in JAX (:func:`galileo_jax.physics.simulate.rollout`).
         velocity: optional (n_objects, 3) release velocities in m/s.
         Extra leading (vmapped) axes of any input reach the host as one batch.
 

@@ -41,9 +41,9 @@ from galileo_jax.effects import BodyState, EffectContext, check_applicable, reso
 from galileo_jax.effects.runtime import (effect_param_names, forces, frictions, has_step_hooks, initial_velocity,
                                          make_context, model_updates, neutral_values, split_values,
                                          surface_frictions)
-from galileo_jax import simulate_c
+from galileo_jax.physics import simulate_c
 from galileo_jax.errors import GalileoError
-from galileo_jax.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model, object_poses
+from galileo_jax.physics.model import NOMINAL_FRICTION, NOMINAL_MASS, ModelIndex, build_model, object_poses
 from galileo_jax.scene import Scene
 
 
@@ -169,7 +169,7 @@ def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx") ->
         effects: :class:`~galileo_jax.effects.Effect` objects to simulate (the scene's own
             ``effects`` are NOT added here; see :func:`scene_effects`).
         engine: "mjx" (rollouts in JAX, differentiable) or "mujoco" (C MuJoCo's batched
-            ``mujoco.rollout`` through a host callback: :mod:`galileo_jax.simulate_c`).
+            ``mujoco.rollout`` through a host callback: :mod:`galileo_jax.physics.simulate_c`).
 
     Returns:
         A :class:`Simulator`.
@@ -273,7 +273,7 @@ def apply_params(sim: Simulator, params: PhysParams) -> mjx.Model:
 
 
 def _pose(sim: Simulator, qpos: jax.Array) -> jax.Array:
-    """(n_objects, 3) centre x, z (m) and pitch about y (rad) from ``qpos`` (:func:`~galileo_jax.model.object_poses`)."""
+    """(n_objects, 3) centre x, z (m) and pitch about y (rad) from ``qpos`` (:func:`~galileo_jax.physics.model.object_poses`)."""
     return object_poses(sim.index, qpos, jnp)
 
 
@@ -284,7 +284,7 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
     simulator's effects act as their hooks say (:mod:`galileo_jax.effects`): model fields
     once, release velocities at t = 0, frictions and forces (``xfrc_applied``) every step.
     On the C engine (``sim.engine == "mujoco"``) the rollout is a host callback
-    (:func:`galileo_jax.simulate_c.rollout_poses`): jittable and vmappable (a vmapped batch is
+    (:func:`galileo_jax.physics.simulate_c.rollout_poses`): jittable and vmappable (a vmapped batch is
     one ``mujoco.rollout``), not differentiable.
 
     Args:

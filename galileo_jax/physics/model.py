@@ -280,7 +280,7 @@ def model_index(model: mujoco.MjModel, n_objects: int) -> ModelIndex:
 def set_physics(model: mujoco.MjModel, data: mujoco.MjData, index: ModelIndex, mass, friction) -> None:
     """Write masses and frictions into a C model, as ``simulate.apply_params`` does in MJX.
 
-    The renderer (:mod:`galileo_jax.synth`) and the C engine (:mod:`galileo_jax.simulate_c`)
+    The renderer (:mod:`galileo_jax.synth`) and the C engine (:mod:`galileo_jax.physics.simulate_c`)
     both set the physics through it, so that a rendered video and a fitted rollout agree.
 
     Args:

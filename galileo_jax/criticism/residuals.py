@@ -830,7 +830,7 @@ GATE_JUMP = 0.05
 ADEQUATE_RATIO = 1.3
 #: ... and its RMSE over all fitted samples within this one (measured on rendered videos without
 #: a hidden effect: 0.4-1.3x, 2.3x where MJX and the renderer part at a second collision; see
-#: :mod:`galileo_jax.diagnosis`, step 3).
+#: :mod:`galileo_jax.criticism.diagnosis`, step 3).
 ADEQUATE_RATIO_ALL = 1.6
 
 
@@ -863,7 +863,7 @@ def adequacy(observation: Observation, simulated: np.ndarray, poses: np.ndarray,
     """A fit-adequacy verdict for a fit's report: does the fitted model describe the video, and
     if not, where does it fail?
 
-    The rule is ``diagnose``'s step 3 (:mod:`galileo_jax.diagnosis`): the model is adequate when
+    The rule is ``diagnose``'s step 3 (:mod:`galileo_jax.criticism.diagnosis`): the model is adequate when
     its RMSE away from contact events is within :data:`ADEQUATE_RATIO` of the noise floor and
     its RMSE over all samples within :data:`ADEQUATE_RATIO_ALL` (at an impact the simulator
     itself is exact only to a physics step, so structure there alone is not a missing effect).

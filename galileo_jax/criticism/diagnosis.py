@@ -9,7 +9,7 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    that fails step 3 is fitted once more from twice the starts (``base_retry``) before
    anything is blamed on missing physics.
 2. **Criticism**: residuals per motion phase and trace with tests for structure
-   (:mod:`galileo_jax.criticism`) and a one-line verdict.
+   (:mod:`galileo_jax.criticism.residuals`) and a one-line verdict.
 3. **Adequate?** A model whose RMSE away from contact events (samples more than one frame
    from a velocity jump of :data:`GATE_JUMP` or more, :func:`calm_rmse`) is within
    ``adequate_ratio`` (1.3) of the tracker's noise floor leaves nothing for an effect to
@@ -117,7 +117,7 @@ The false-alarm rate is measured on rendered videos without a hidden effect
 
 With ``max_effects > 1`` the loop (steps 3-6) repeats with the winner added, so a report can show the
 error falling step by step. Everything here is orchestration; the physics and statistics live
-in :mod:`galileo_jax.effects`, :mod:`galileo_jax.inference` and :mod:`galileo_jax.criticism`.
+in :mod:`galileo_jax.effects`, :mod:`galileo_jax.inference` and :mod:`galileo_jax.criticism.residuals`.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from galileo_jax import criticism
+from galileo_jax.criticism import residuals as criticism
 from galileo_jax.effects import Effect, available_effects, resolve_effects
 from galileo_jax.inference.grad import GradResult, fit_grad
 from galileo_jax.inference.joint import JointProblem
@@ -142,8 +142,8 @@ from galileo_jax.inference.summary import summarize_grad
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, event_sd
 from galileo_jax.observation import Observation
 from galileo_jax.scene import Scene
-from galileo_jax.simulate import scene_effects
-from galileo_jax.simulate_c import check_supported
+from galileo_jax.physics.simulate import scene_effects
+from galileo_jax.physics.simulate_c import check_supported
 
 
 @dataclass(frozen=True)
@@ -305,7 +305,7 @@ class VideoFit:
         poses: (N, n_obj, 3) simulated poses at the frame times (x m, z m, pitch rad).
         residuals: (T * m,) standardised residuals at the used samples.
         rmse: RMSE of observed - simulated velocity over the fit window, all traces, m/s.
-        criticism: :func:`galileo_jax.criticism.summarize` dict (phases, table, verdict).
+        criticism: :func:`galileo_jax.criticism.residuals.summarize` dict (phases, table, verdict).
         test_residuals: (T * m,) residuals standardised in the test likelihood (module
             docstring), trace-major over the used samples; None before it is set up.
     """
@@ -564,13 +564,13 @@ def event_sds(base: ModelFit, observations) -> list[np.ndarray]:
 
 
 #: Velocity jump (m/s) that marks a contact event for the adequacy check (step 3 of the module
-#: docstring; :data:`galileo_jax.criticism.GATE_JUMP`, shared with every fit's adequacy verdict).
+#: docstring; :data:`galileo_jax.criticism.residuals.GATE_JUMP`, shared with every fit's adequacy verdict).
 GATE_JUMP = criticism.GATE_JUMP
 
 
 def calm_masks(base: ModelFit, observations) -> list[np.ndarray]:
     """Per video the (2n, N-1) bool mask of fitted samples away from contact events
-    (:func:`galileo_jax.criticism.calm_mask` of ``base``'s simulated profile)."""
+    (:func:`galileo_jax.criticism.residuals.calm_mask` of ``base``'s simulated profile)."""
     return [criticism.calm_mask(o, v.simulated) for v, o in zip(base.videos, observations)]
 
 
