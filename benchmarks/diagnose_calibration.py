@@ -180,7 +180,7 @@ def stated_scene(scene, family: str, truth: dict):
 
 def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family: str = "ours") -> dict:
     """Render (unless already rendered) and diagnose one video; the record written per video."""
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, diagnose
+    from galileo_jax.criticism.diagnosis import diagnose, DiagnoseSettings
     from galileo_jax.observe import observe, read_video
     from galileo_jax.scene import load_scene
 
@@ -242,7 +242,8 @@ def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> f
     """RMSE (m/s) of the simulation at the TRUE parameters (hidden effects included, true
     release time) against the tracked profile, on the engine ``diagnose`` fits that model on
     (:func:`galileo_jax.criticism.diagnosis.model_engine`): the best any fit of the right model can do."""
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, model_engine
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+    from galileo_jax.criticism.models import model_engine
     from galileo_jax.criticism.residuals import profile_rmse
     from galileo_jax.inference.problem import Problem
 

@@ -79,7 +79,8 @@ def fitted_rmse(scene, obs, effects=(), starts=()) -> tuple[float, dict]:
     import jax
 
     from galileo_jax.criticism.residuals import profile_rmse
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, model_engine
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+    from galileo_jax.criticism.models import model_engine
     from galileo_jax.effects import get_effect
     from galileo_jax.inference.grad import fit_grad
     from galileo_jax.inference.problem import Problem

@@ -3,7 +3,7 @@
 For rendered calibration videos (``benchmarks/diagnose_calibration.py``: the video, its scene
 ``.yaml`` and ``.truth.json`` in ``--videos-dir``, its diagnose record in
 ``benchmarks/results/diagnose_calibration/``), repeats diagnose's refit of the HIDDEN effect
-from the record's base estimate and screen (:func:`galileo_jax.criticism.diagnosis._refit_init`,
+from the record's base estimate and screen (:func:`galileo_jax.criticism.diagnosis.refit_init`,
 :func:`galileo_jax.criticism.diagnosis.fit_model`), with the search, and reports the profile RMSE of
 the LM-only refit in the record ('before') and of the new refit ('after') against the noise
 floor and the attainable RMSE (the MJX simulation at the true parameters). Issue 3's target:
@@ -42,7 +42,11 @@ def run_one(name: str, videos: Path) -> dict:
     """Refit ``name``'s hidden effect with the search; the record (dict) of before/after."""
     import jax
 
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, Union, _refit_init, candidate_effects, fit_model
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+
+    from galileo_jax.criticism.models import candidate_effects, fit_model, Union
+
+    from galileo_jax.criticism.screening import refit_init
     from galileo_jax.effects import available_effects
     from galileo_jax.observe import observe, read_video
     from galileo_jax.scene import load_scene
@@ -57,7 +61,7 @@ def run_one(name: str, videos: Path) -> dict:
     names = union.problem.names
     base = SimpleNamespace(result=SimpleNamespace(theta=np.array([rec["fitted"]["base"][n][0] for n in names]),
                                                   fixed=tuple(union.held(()))))
-    init = _refit_init(union, base, effect, rec["screen"])
+    init = refit_init(union, base, effect, rec["screen"])
     t = time.perf_counter()
     fit = fit_model(union, (effect.name,), settings, jax.random.PRNGKey(7), init=init,
                     starts=settings.refit_starts, screen=settings.refit_screen)

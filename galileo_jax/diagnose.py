@@ -76,7 +76,7 @@ def effects_table() -> str:
 
 def summary_text(diag, videos: list[Path]) -> str:
     """Console report: base verdict, screen, refits with tests, decision, error before/after."""
-    from galileo_jax.criticism.diagnosis import ENGINE_NAMES
+    from galileo_jax.criticism.models import ENGINE_NAMES
 
     d = diag.decision
     what = ", ".join(f"{v.name} (scene {s.name})" for v, s in zip(videos, diag.scenes))
@@ -176,7 +176,8 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
     import jax
 
     from galileo_jax.criticism import residuals as criticism
-    from galileo_jax.criticism.diagnosis import ENGINE_NAMES, base_loglik_by_engine
+    from galileo_jax.criticism.diagnosis import base_loglik_by_engine
+    from galileo_jax.criticism.models import ENGINE_NAMES
     from galileo_jax.report.figures import model_comparison_figure, profile_figure, residual_figure
     from galileo_jax.report.results import package_versions, write_json
 
@@ -233,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.alpha < 1:
         raise GalileoError(f"--alpha must be between 0 and 1, got {args.alpha}")
     inputs = videos_and_scenes(args.videos, args.scene)
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, candidate_effects, diagnose
+    from galileo_jax.criticism.diagnosis import diagnose, DiagnoseSettings
+    from galileo_jax.criticism.models import candidate_effects
     from galileo_jax.effects import resolve_effects
 
     names = None if args.effects is None else tuple(e.name for e in resolve_effects(args.effects))

@@ -192,7 +192,7 @@ def test_velocity_friction_matches_closed_form_around_its_reference_speed():
 
 
 def test_screen_differences_skip_rollouts_that_blew_up():
-    from galileo_jax.criticism.diagnosis import finite_difference
+    from galileo_jax.criticism.screening import finite_difference
 
     res = np.array([[1.0, 2.0], [1.5, 2.5], [0.5, 1.0], [np.nan, 1.0]])  # rows: current, +h, -h, broken
     assert np.allclose(finite_difference(res, 1, 2, 0.5), [1.0, 1.5])  # central
@@ -241,7 +241,7 @@ CUBIC = Effect(
 
 @pytest.mark.slow
 def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, base_loglik_by_engine, diagnose
+    from galileo_jax.criticism.diagnosis import base_loglik_by_engine, diagnose, DiagnoseSettings
     from galileo_jax.diagnose import write_outputs
     from galileo_jax.inference.problem import simulated_observation
 
@@ -326,7 +326,7 @@ def test_adequacy_check_leaves_out_contact_events_but_not_what_follows_them():
     still count."""
     from types import SimpleNamespace
 
-    from galileo_jax.criticism.diagnosis import GATE_JUMP, calm_masks, calm_rmse
+    from galileo_jax.criticism.nested import calm_masks, calm_rmse, GATE_JUMP
 
     rng = np.random.default_rng(3)
     n = 60
@@ -352,7 +352,9 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     """``Effect.search_restarts``: restitution's refits run several CMA-ES searches, alternating
     between LM's end and a global screen's fit, and keep the best point of all; an effect
     without restarts gets one search. (Cheap: a one-object C MuJoCo union, 2 generations of 8.)"""
-    from galileo_jax.criticism import diagnosis as D
+    from galileo_jax.criticism import models as M
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+    from galileo_jax.criticism.models import Union, fit_model
     from galileo_jax.inference import search as S
     from galileo_jax.inference.problem import simulated_observation
 
@@ -360,9 +362,9 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     scene = _scene(two=False, start=1.0)
     obs = simulated_observation(scene, PhysParams(jnp.array([0.5]), jnp.array([0.2])), fps=30.0, duration=0.8,
                                 release_time=0.2, position_sd=1e-4)
-    settings = D.DiagnoseSettings(search_popsize_c=8, search_generations_c=2, base_starts=1, base_screen=8,
+    settings = DiagnoseSettings(search_popsize_c=8, search_generations_c=2, base_starts=1, base_screen=8,
                                   max_steps=10)
-    union = D.Union([scene], [obs], (get_effect("linear_drag"),), settings, engine="mujoco")
+    union = Union([scene], [obs], (get_effect("linear_drag"),), settings, engine="mujoco")
     starts_seen = []
     real = S.cma_search
 
@@ -371,13 +373,13 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
         starts_seen.append((np.asarray(theta0).copy(), kw["seed"], out.loglik))
         return out
 
-    monkeypatch.setattr(D, "cma_search", spy)
-    fit = D.fit_model(union, ("linear_drag",), settings, jax.random.PRNGKey(0), init=np.array([0.3, 0.0, 0.5]))
+    monkeypatch.setattr(M, "cma_search", spy)  # fit_model's search
+    fit = fit_model(union, ("linear_drag",), settings, jax.random.PRNGKey(0), init=np.array([0.3, 0.0, 0.5]))
     assert len(starts_seen) == 1 and "restarts" not in fit.search
     starts_seen.clear()
     restarting = dataclasses.replace(get_effect("linear_drag"), search_restarts=3)  # as restitution declares
-    union = D.Union([scene], [obs], (restarting,), settings, engine="mujoco")
-    fit = D.fit_model(union, ("linear_drag",), settings, jax.random.PRNGKey(0), init=np.array([0.3, 0.0, 0.5]))
+    union = Union([scene], [obs], (restarting,), settings, engine="mujoco")
+    fit = fit_model(union, ("linear_drag",), settings, jax.random.PRNGKey(0), init=np.array([0.3, 0.0, 0.5]))
     assert fit.search["restarts"] == 3 and len(starts_seen) == 3
     assert len({seed for _, seed, _ in starts_seen}) == 3  # independent searches
     assert not np.allclose(starts_seen[0][0], starts_seen[1][0]) and np.allclose(starts_seen[0][0], starts_seen[2][0])
@@ -393,7 +395,11 @@ def test_nested_refit_never_tests_below_the_null():
     value with the reason."""
     from types import SimpleNamespace
 
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, ModelFit, test_effect
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+
+    from galileo_jax.criticism.models import ModelFit
+
+    from galileo_jax.criticism.nested import test_effect
 
     effect = available_effects()["quadratic_drag"]
     name = effect.params[0].name
@@ -423,29 +429,32 @@ def test_alternatives_are_refitted_from_an_improved_null():
     around the old null is refitted from the new one: its refit starts, among others, at the
     null's point with the effect neutral, so it ends no lower than the null, where the stuck
     alternative was far below. (Cheap: a one-object C MuJoCo union without a hidden effect.)"""
-    from galileo_jax.criticism import diagnosis as D
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+    from galileo_jax.criticism.models import Union, fit_model
+    from galileo_jax.criticism.nested import refit_from_null
+    from galileo_jax.criticism.screening import refit_init
     from galileo_jax.inference.problem import simulated_observation
 
     scene = _scene(two=False, start=1.0)
     obs = simulated_observation(scene, PhysParams(jnp.array([0.5]), jnp.array([0.2])), fps=30.0, duration=0.8,
                                 release_time=0.2, position_sd=1e-4)
     effect = get_effect("linear_drag")
-    settings = D.DiagnoseSettings(base_starts=1, base_screen=16, max_steps=20, refit_search=0,
+    settings = DiagnoseSettings(base_starts=1, base_screen=16, max_steps=20, refit_search=0,
                                   search_generations_c=0)
-    union = D.Union([scene], [obs], (effect,), settings, engine="mujoco")
-    null = D.fit_model(union, (), settings, jax.random.PRNGKey(0))
-    stuck = D.fit_model(union, ("linear_drag",), dataclasses.replace(settings, max_steps=1), jax.random.PRNGKey(1),
+    union = Union([scene], [obs], (effect,), settings, engine="mujoco")
+    null = fit_model(union, (), settings, jax.random.PRNGKey(0))
+    stuck = fit_model(union, ("linear_drag",), dataclasses.replace(settings, max_steps=1), jax.random.PRNGKey(1),
                         init=np.array([0.6, 0.1, 4.0]), starts=0, screen=0, search=False)
     assert stuck.loglik < null.loglik - 10.0  # an alternative far below the null: LR would be negative
     problem = union.problem
-    init = D._refit_init(union, null, effect, [])
+    init = refit_init(union, null, effect, [])
     j = problem.names.index(effect.params[0].name)
     at_step = init.copy()
     at_step[j] = effect.params[0].neutral + effect.params[0].screen_step
     ll = np.asarray(problem.log_likelihood(problem.space.to_unconstrained(jnp.asarray(np.stack([init, at_step])))))
     assert ll[0] >= ll[1] and ll[0] > null.loglik - 1.0  # the neutral start is taken where it is the best
     fits = [stuck]
-    assert D.refit_from_null(union, null, effect, fits, 0, [], (), settings, jax.random.PRNGKey(2))
+    assert refit_from_null(union, null, effect, fits, 0, [], (), settings, jax.random.PRNGKey(2))
     assert fits[0].loglik >= null.loglik - 0.1
     assert fits[0].summary["parameters"][effect.params[0].name]["best"] < 0.5  # no drag was simulated
 
@@ -457,7 +466,7 @@ def test_diagnose_fits_a_scale_error_before_blaming_physics():
     the diagnosis finds the scale error and no missing effect, and its report says how large
     the scale error came out; taking the scale as exact (tolerance 0), the misfit is blamed on
     a physical effect. (C MuJoCo, one object sliding onto the floor, short searches.)"""
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, diagnose
+    from galileo_jax.criticism.diagnosis import diagnose, DiagnoseSettings
     from galileo_jax.diagnose import summary_text
     from galileo_jax.inference.problem import simulated_observation
 
@@ -585,7 +594,9 @@ def test_no_refit_when_nothing_points_at_an_effect():
     residuals, a larger misfit, a structural candidate or quiet_p 0 -> refits run."""
     from types import SimpleNamespace
 
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, _decision, quiet
+    from galileo_jax.criticism.diagnosis import _decision, DiagnoseSettings
+
+    from galileo_jax.criticism.nested import quiet
 
     settings = DiagnoseSettings()
     noisy = SimpleNamespace(name="base", rmse=0.0082, criticism={"looks_like_noise": True})
@@ -614,7 +625,9 @@ def test_adequate_improved_null_does_not_wave_through_a_clear_gain():
     (supported fits 5-6% above the improved model: the adequate exit stands)."""
     from types import SimpleNamespace
 
-    from galileo_jax.criticism.diagnosis import DiagnoseSettings, clear_gain
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+
+    from galileo_jax.criticism.nested import clear_gain
 
     settings = DiagnoseSettings()
     drag = SimpleNamespace(rmse=0.0080)

@@ -3,5 +3,9 @@
 * :mod:`.residuals`: the fitted simulation against the video: residuals per motion phase and
   trace, the noise floor, tests for structure, and a one-line verdict.
 * :mod:`.diagnosis`: :func:`~galileo_jax.criticism.diagnosis.diagnose`, the loop that fits,
-  criticises, screens candidate effects, refits and decides.
+  criticises, screens candidate effects, refits and decides (its docstring: why each step);
+  its steps: :mod:`.nested` (adequacy, likelihood-ratio tests of nested models, the null at its
+  maximum), :mod:`.screening` (the candidates ranked at the current fit), :mod:`.models` (the
+  models compared and their fits), :mod:`.settings` (:class:`DiagnoseSettings`, with what each
+  default was measured on).
 """
