@@ -7,7 +7,8 @@ Pipeline, one subpackage (or module) per stage:
     likelihood.py(observed, simulated) --inference/ (grad | mh | cnn)--> posterior / estimate
     criticism/: residuals per phase, verdict; diagnose: which physical effect is missing
     report/ (console, JSON, posterior.nc, figures, overlay video; predict.py)
-    command lines: fit.py, diagnose.py, train.py, synth.py, sweep/ (thin, over pipeline.py)
+    command lines: fit.py, diagnose.py, train.py, sweep/ (thin, over pipeline.py); synth/ renders
+    test videos with exact ground truth
 
 Only the mass ratio phi = (m1 - m2) / (m1 + m2) is identifiable from velocities; the
 absolute mass scale is fixed only by a known mass in the scene file.

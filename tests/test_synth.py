@@ -48,7 +48,7 @@ from galileo_jax.effects import get_effect
 from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
 from galileo_jax.observation import profile_from_positions
-from galileo_jax.physics.model import WorldPhysics, model_index
+from galileo_jax.physics.model import WorldPhysics, build_model, model_index
 from galileo_jax.physics.simulate import PhysParams, make_simulator, scene_effects, steps_needed, velocity_profile
 from galileo_jax.scene import load_scene, scene_from_dict
 
@@ -161,7 +161,7 @@ def test_rendered_silhouettes_centred_on_truth_pixels(scene):
 
 def test_render_model_keeps_the_physics_layout(scene):
     view = render.View((0.0, 0.1), 200.0, 64, 48)
-    plain = synth.build_model(scene)[0]
+    plain = build_model(scene)[0]
     fancy = render.build_render_model(scene, view, 1.0 / 240.0, hand=True)
     assert model_index(fancy, 2).qpos == model_index(plain, 2).qpos
     assert fancy.nq == plain.nq and fancy.nv == plain.nv and fancy.npair == plain.npair
@@ -683,7 +683,7 @@ def test_clutter_backdrop_is_seeded_and_visual_only(scene):
     np.testing.assert_array_equal(a, render.clutter_texture(200, 120, 400.0, seed=1))
     assert np.abs(a.astype(int) - b).mean() > 10 and a.std() > 20
     view = render.View((0.0, 0.1), 200.0, 64, 48, "perspective", 2.2, "left")
-    plain = synth.build_model(scene)[0]
+    plain = build_model(scene)[0]
     fancy = render.build_render_model(scene, view, 1.0 / 240.0, hand=True, backdrop="clutter", look="plain")
     assert model_index(fancy, 2).qpos == model_index(plain, 2).qpos and fancy.nq == plain.nq
 
