@@ -7,7 +7,7 @@ parameters drawn as ``synth --random`` draws them (:func:`galileo_jax.synth.draw
 object 1 slides and reaches object 2, or the floor), tracks them, runs
 :func:`galileo_jax.criticism.diagnosis.diagnose` with every applicable candidate, and records per video:
 the decision, whether the hidden effect was named first, and the base and final RMSE against
-two floors: the tracker's noise floor (what a user sees, :func:`galileo_jax.criticism.residuals.noise_floor`)
+two floors: the tracker's noise floor (what a user sees, :func:`galileo_jax.criticism.noise.noise_floor`)
 and the *attainable* floor, the RMSE of the simulation at the true parameters (hidden effect
 included) against the tracked profile, on the engine the diagnosis fits that model on (C
 MuJoCo, the renderer's own, or MJX for effects that act every step, whose error against the

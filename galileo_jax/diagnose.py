@@ -175,6 +175,7 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
     """
     import jax
 
+    from galileo_jax.criticism import noise
     from galileo_jax.criticism import residuals as criticism
     from galileo_jax.criticism.diagnosis import base_loglik_by_engine
     from galileo_jax.criticism.models import ENGINE_NAMES
@@ -195,7 +196,7 @@ def write_outputs(diag, out: Path, titles: list[str]) -> dict:
             crit = vf.criticism  # the fit's criticism (criticism.summarize): phases, table, noise
             # standardised with the tracking noise the tests used (the tracker's, or the one
             # measured from the residual track where the tracker's is too small)
-            z = criticism.standardised_residuals(obs._replace(position_sd=criticism.tested_position_sd(crit, obs)),
+            z = noise.standardised_residuals(obs._replace(position_sd=criticism.tested_position_sd(crit, obs)),
                                                  vf.simulated, crit["sd_model"])
             phases = np.asarray(crit["phases"]["labels"])
             flagged = [(r["trace"], r["phase"]) for r in crit["table"] if r["structured"]]
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.alpha < 1:
         raise GalileoError(f"--alpha must be between 0 and 1, got {args.alpha}")
     inputs = videos_and_scenes(args.videos, args.scene)
-    from galileo_jax.criticism.diagnosis import diagnose, DiagnoseSettings
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, diagnose
     from galileo_jax.criticism.models import candidate_effects
     from galileo_jax.effects import resolve_effects
 

@@ -285,7 +285,7 @@ def event_sd(simulated: np.ndarray, observed: np.ndarray | None = None, velocity
     observed one where it stands out of the noise: threshold max(jump, 16 velocity_sd), 16 =
     5 x sqrt(10), the SD of a second difference of MA(1) velocity noise being sqrt(10)
     velocity_sd) get SD min(``fraction`` x jump, ``cap``) on both of that object's traces. Used by
-    the tests of :mod:`galileo_jax.criticism.diagnosis` (with :func:`galileo_jax.criticism.residuals.sample_sd`).
+    the tests of :mod:`galileo_jax.criticism.diagnosis` (with :func:`galileo_jax.criticism.noise.sample_sd`).
 
     Args:
         simulated: (2n, N-1) simulated profile (e.g. of the base fit), m/s.

@@ -17,7 +17,10 @@ import re
 import numpy as np
 import pytest
 
+from galileo_jax.criticism import noise as CN
+from galileo_jax.criticism import phases as CP
 from galileo_jax.criticism import residuals as C
+from galileo_jax.criticism import structure as CS
 from galileo_jax.observation import Observation, profile_from_positions
 from galileo_jax.report.figures import model_comparison_figure, residual_figure
 
@@ -103,8 +106,8 @@ def test_each_test_is_calibrated_under_the_noise_model(noise_runs):
     assert all(-0.40 < rho < -0.33 for rho in rhos)  # the strongly correlated regime
     # the tracker's (here: the true) noise SD is replaced in about NOISE_LEVEL of the traces
     reest = [v["reestimated"] for s in noise_runs for v in s["tracking_noise_m"].values()]
-    assert len(reest) == 4 * N_SEEDS and np.mean(reest) <= 2.5 * C.NOISE_LEVEL
-    for test in C.TESTS:
+    assert len(reest) == 4 * N_SEEDS and np.mean(reest) <= 2.5 * CN.NOISE_LEVEL
+    for test in CS.TESTS:
         p = np.array([r[f"p_{test}"] for s in noise_runs for r in s["table"] if r[f"p_{test}"] is not None])
         assert p.size > 1000
         frac = float(np.mean(p < 0.05))
@@ -148,7 +151,7 @@ def test_smooth_unbiased_residuals_are_found_by_the_autocorrelation_test():
     wiggle = 0.03 * np.sin(2 * np.pi * k / 12.0)  # m/s, about the noise SD
     obs = obs._replace(profile=obs.profile + wiggle[None, :])
     table = C.residual_table(obs, sim, sd_model=0.0)
-    row = next(r for r in table if r.trace == "object 1 x" and r.phase == C.ALL)
+    row = next(r for r in table if r.trace == "object 1 x" and r.phase == CP.ALL)
     assert row.structured and row.p_lag1 < 1e-3 and row.rho_hat > row.rho_expected + 0.3
     assert row.p_cusum > 0.01  # no bias to find
 
@@ -163,27 +166,27 @@ def test_phases_of_a_hand_made_trajectory():
     x2 = np.clip(0.4 + 0.5 * (t - 1.89), 0.4, 0.7)
     poses[:, 0, 0], poses[:, 0, 1] = x1, 0.05 + np.maximum(-x1, 0) * math.tan(THETA)
     poses[:, 1, 0], poses[:, 1, 1] = x2, 0.05
-    ph = C.motion_phases(poses, t, 0.25, 2, rest_speed=0.02, collision_halfwidth=1)
+    ph = CP.motion_phases(poses, t, 0.25, 2, rest_speed=0.02, collision_halfwidth=1)
     assert ph.shape == (2, 30)
     expect1 = ["before_release"] * 2 + ["ramp"] * 11 + ["floor"] * 4 + ["collision"] * 3 + ["rest"] * 10
     expect2 = ["before_release"] * 2 + ["rest"] * 15 + ["collision"] * 3 + ["floor"] * 5 + ["rest"] * 5
     assert ph[0].tolist() == expect1
     assert ph[1].tolist() == expect2
-    assert C.impact_sample(poses, t, 0.25) == 18
+    assert CP.impact_sample(poses, t, 0.25) == 18
     # default half-width 2: five collision samples, centred on the impact, for both objects
-    ph2 = C.motion_phases(poses, t, 0.25, 2)
+    ph2 = CP.motion_phases(poses, t, 0.25, 2)
     assert np.flatnonzero(ph2[0] == "collision").tolist() == [16, 17, 18, 19, 20]
     assert (ph2[0] == "collision").tolist() == (ph2[1] == "collision").tolist()
     # one object: no collision phase
-    ph1 = C.motion_phases(poses[:, :1], t, 0.25, 1)
+    ph1 = CP.motion_phases(poses[:, :1], t, 0.25, 1)
     assert "collision" not in ph1 and ph1[0, 17] == "floor" and ph1[0, 25] == "rest"
     # slow creep below rest_speed is "rest"
     creep = poses.copy()
     creep[:, 0, 0] = -0.52 + 0.01 * np.maximum(t - 0.25, 0)
     creep[:, 0, 1] = 0.05 - creep[:, 0, 0] * math.tan(THETA)
-    assert set(C.motion_phases(creep[:, :1], t, 0.25, 1)[0, 2:]) == {"rest"}
-    assert set(C.PHASES) >= set(ph.ravel()) and C.PHASES[0] == "before_release"
-    spans = C.phase_spans(ph, (t[1:] + t[:-1]) / 2)
+    assert set(CP.motion_phases(creep[:, :1], t, 0.25, 1)[0, 2:]) == {"rest"}
+    assert set(CP.PHASES) >= set(ph.ravel()) and CP.PHASES[0] == "before_release"
+    spans = CP.phase_spans(ph, (t[1:] + t[:-1]) / 2)
     assert [s["phase"] for s in spans[0]] == ["before_release", "ramp", "floor", "collision", "rest"]
     assert spans[0][1]["first"] == 2 and spans[0][1]["last"] == 12
     assert spans[0][1]["start"] == pytest.approx(0.2) and spans[0][1]["end"] == pytest.approx(1.3)
@@ -191,21 +194,21 @@ def test_phases_of_a_hand_made_trajectory():
 
 def test_phases_reject_bad_shapes():
     with pytest.raises(ValueError, match="poses"):
-        C.motion_phases(np.zeros((5, 2, 3)), np.arange(5.0), 0.0, 1)
+        CP.motion_phases(np.zeros((5, 2, 3)), np.arange(5.0), 0.0, 1)
     with pytest.raises(ValueError, match="frame_times"):
-        C.motion_phases(np.zeros((5, 1, 3)), np.arange(4.0), 0.0, 1)
+        CP.motion_phases(np.zeros((5, 1, 3)), np.arange(4.0), 0.0, 1)
 
 
 # ---------------------------------------------------------------------------- building blocks
 def test_noise_model_numbers():
     obs, sim, _ = synthetic(0, sd_p=0.001, sd_model=0.05)
     vsd = math.sqrt(2) * 0.001 * FPS
-    assert C.residual_sd(obs, 0.05) == pytest.approx(np.full(4, math.hypot(vsd, 0.05)))
-    assert C.expected_lag1(obs, 0.05) == pytest.approx(np.full(4, -0.001**2 * FPS**2 / (vsd**2 + 0.05**2)))
-    assert C.expected_lag1(obs, 0.0) == pytest.approx(np.full(4, -0.5))
-    z = C.standardised_residuals(obs, sim, 0.05)
+    assert CN.residual_sd(obs, 0.05) == pytest.approx(np.full(4, math.hypot(vsd, 0.05)))
+    assert CN.expected_lag1(obs, 0.05) == pytest.approx(np.full(4, -0.001**2 * FPS**2 / (vsd**2 + 0.05**2)))
+    assert CN.expected_lag1(obs, 0.0) == pytest.approx(np.full(4, -0.5))
+    z = CN.standardised_residuals(obs, sim, 0.05)
     assert z == pytest.approx((obs.profile - sim) / math.hypot(vsd, 0.05))
-    assert C.noise_floor(obs) == pytest.approx(vsd)
+    assert CN.noise_floor(obs) == pytest.approx(vsd)
 
 
 def test_runs_test_matches_enumeration():
@@ -216,17 +219,17 @@ def test_runs_test_matches_enumeration():
         s = -np.ones(10)
         s[list(pos)] = 1
         counts.append(1 + int(np.sum(s[1:] != s[:-1])) <= r_obs)
-    assert C.runs_test(signs * 0.7) == pytest.approx(np.mean(counts))
-    assert C.runs_test(np.array([1.0, 1, 1, -1, -1, -1])) == pytest.approx(2 / 20)  # 2 of C(6,3) have 2 runs
-    assert C.runs_test(np.ones(8)) == 1.0
-    assert C.runs_test(np.r_[np.ones(10), -np.ones(10)]) == pytest.approx(2 / math.comb(20, 10))
+    assert CS.runs_test(signs * 0.7) == pytest.approx(np.mean(counts))
+    assert CS.runs_test(np.array([1.0, 1, 1, -1, -1, -1])) == pytest.approx(2 / 20)  # 2 of C(6,3) have 2 runs
+    assert CS.runs_test(np.ones(8)) == 1.0
+    assert CS.runs_test(np.r_[np.ones(10), -np.ones(10)]) == pytest.approx(2 / math.comb(20, 10))
 
 
 def test_sup_brownian_tail():
     # 95% quantile of sup_[0,1] |W| is 2.2414 (e.g. Borodin & Salminen); the two series agree at x = 1
-    assert C.sup_brownian_sf(2.2414) == pytest.approx(0.05, abs=2e-4)
-    assert C.sup_brownian_sf(1.0 - 1e-9) == pytest.approx(C.sup_brownian_sf(1.0 + 1e-9), abs=1e-6)
-    assert C.sup_brownian_sf(0.0) == 1.0 and C.sup_brownian_sf(8.0) < 1e-14
+    assert CS.sup_brownian_sf(2.2414) == pytest.approx(0.05, abs=2e-4)
+    assert CS.sup_brownian_sf(1.0 - 1e-9) == pytest.approx(CS.sup_brownian_sf(1.0 + 1e-9), abs=1e-6)
+    assert CS.sup_brownian_sf(0.0) == 1.0 and CS.sup_brownian_sf(8.0) < 1e-14
 
 
 def glitchy(seed: int, scale2: float = 1.0, n_glitches: int = 5, size: float = 6.0):
@@ -250,10 +253,10 @@ def test_tracking_glitches_are_measured_as_noise_not_blamed_on_the_model(seed):
     track (:func:`tracking_noise`) they look like noise, and the verdict says which SD it used.
     With the same glitches a wrong model (object 2 slides 3x farther) is still found."""
     obs, sim, poses = glitchy(seed)
-    kw = dict(sd_model=0.05, phases=C.motion_phases(poses, obs.frame_times, obs.release_time, 2))
+    kw = dict(sd_model=0.05, phases=CP.motion_phases(poses, obs.frame_times, obs.release_time, 2))
     plain = C.residual_table(obs, sim, reestimate_noise=False, **kw)
     assert any(r.structured for r in plain if r.trace == "object 1 x")
-    noise = C.tracking_noise(obs, sim, 0.05)
+    noise = CN.tracking_noise(obs, sim, 0.05)
     assert noise["reestimated"][0] and not noise["reestimated"][1:].any()
     assert 1.5 < noise["used"][0] / obs.position_sd[0] < 3.5  # sqrt(1 + 5 * 36 / 61) ~ 2 in expectation
     out = C.summarize(obs, sim, poses, sd_model=0.05)
@@ -279,12 +282,12 @@ def test_a_mistimed_impact_does_not_pass_for_tracking_noise(monkeypatch):
     t = obs.frame_times
     poses = poses_at(t + 1.0 / FPS)
     early = profile_from_positions(poses[..., :2], t)
-    noise = C.tracking_noise(obs, early, 0.05)
+    noise = CN.tracking_noise(obs, early, 0.05)
     assert not noise["reestimated"].any()
     out = C.summarize(obs, early, poses, sd_model=0.05)
     assert not out["looks_like_noise"] and "measured from the residual track" not in out["verdict"]
-    monkeypatch.setattr(C, "SIM_EVENT_JUMP", 1e9)
-    assert C.tracking_noise(obs, early, 0.05)["reestimated"][[0, 2]].all()
+    monkeypatch.setattr(CN, "SIM_EVENT_JUMP", 1e9)
+    assert CN.tracking_noise(obs, early, 0.05)["reestimated"][[0, 2]].all()
 
 
 def row(**kw) -> C.ResidualRow:
@@ -340,8 +343,8 @@ def test_residual_figure(tmp_path):
     obs, sim, poses = synthetic(0, scale2=3.0)
     t = obs.frame_times
     times = 0.5 * (t[1:] + t[:-1])
-    z = C.standardised_residuals(obs, sim)
-    ph = C.motion_phases(poses, t, obs.release_time, 2)
+    z = CN.standardised_residuals(obs, sim)
+    ph = CP.motion_phases(poses, t, obs.release_time, 2)
     table = C.residual_table(obs, sim, phases=ph)
     flags = C.flagged(table)
     assert ("object 2 x", "floor") in flags
@@ -358,7 +361,7 @@ def test_residual_figure(tmp_path):
         np.testing.assert_allclose(panel["x"][0], times[obs.mask])
         np.testing.assert_allclose(panel["x"][1], z[2 * j, obs.mask])
         np.testing.assert_allclose(panel["y"][1], z[2 * j + 1, obs.mask])
-        expect = [(s["phase"], s["start"], s["end"]) for s in C.phase_spans(ph, times)[j]]
+        expect = [(s["phase"], s["start"], s["end"]) for s in CP.phase_spans(ph, times)[j]]
         assert [s[0] for s in panel["spans"]] == [e[0] for e in expect]
         np.testing.assert_allclose([s[1:] for s in panel["spans"]], [e[1:] for e in expect])
     assert "structured: object 2 x" in drawn["panels"][1]["marked"]

@@ -130,7 +130,6 @@ from dataclasses import dataclass
 import jax
 import numpy as np
 
-from galileo_jax.criticism import residuals as criticism
 from galileo_jax.criticism.models import (
     CALIBRATION_NUISANCES,
     ENGINE_NAMES,
@@ -159,6 +158,7 @@ from galileo_jax.criticism.nested import (
     refit_null,
     test_effect,
 )
+from galileo_jax.criticism.noise import noise_floor
 from galileo_jax.criticism.screening import refit_init, screen_candidates
 from galileo_jax.criticism.settings import DiagnoseSettings
 from galileo_jax.effects import Effect, available_effects, resolve_effects
@@ -267,7 +267,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         current = evaluate(union, current.result, (), settings)
     masks = calm_masks(current, observations)
     n_used = [int(np.sum(o.mask)) * 2 * o.n_objects for o in observations]
-    floor = pooled_rms([criticism.noise_floor(o) for o in observations], n_used)
+    floor = pooled_rms([noise_floor(o) for o in observations], n_used)
     if settings.base_retry and not adequate(current, calm_rmse(current, observations, masks)[0], floor, settings):
         # before any effect is screened, make sure the base model is not merely stuck (step 3)
         say("the base model misfits: fitting it again from more starts")

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import jax
 import numpy as np
 
+from galileo_jax.criticism import noise
 from galileo_jax.criticism import residuals as criticism
 from galileo_jax.criticism.settings import DiagnoseSettings
 from galileo_jax.effects import Effect, available_effects, resolve_effects
@@ -372,7 +373,7 @@ def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSett
         obs = p.observation
         z_test = None
         if union.sd_events is not None:
-            z_test = criticism.standardised_residuals(obs, simulated, union.sd_test, union.sd_events[j])
+            z_test = noise.standardised_residuals(obs, simulated, union.sd_test, union.sd_events[j])
             z_test = z_test[:, np.asarray(obs.mask, bool)].reshape(-1)
         # the criticism keeps the fit's likelihood (0.05 m/s floor): its structure tests assume the
         # MA(1) noise model, and with the bare tracking noise (lag-1 correlation -> -1/2) the

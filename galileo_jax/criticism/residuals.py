@@ -18,13 +18,13 @@ with independent errors of SD ``sd_p[i]`` (m); differencing over one frame gives
 residuals r = D e with covariance sd_p^2 D D^T, to which the likelihood adds a white model-error
 floor sd_model^2 I (m/s)^2. So for one trace, at frame rate fps,
 
-    Var(r_k)            = s^2 = 2 sd_p^2 fps^2 + sd_model^2         (s: :func:`residual_sd`)
+    Var(r_k)            = s^2 = 2 sd_p^2 fps^2 + sd_model^2         (s: :func:`~galileo_jax.criticism.noise.residual_sd`)
     Cov(r_k, r_{k+1})   = -sd_p^2 fps^2
     Corr(r_k, r_{k+1})  = rho = -sd_p^2 fps^2 / (2 sd_p^2 fps^2 + sd_model^2)  in [-1/2, 0]
-                                                                      (:func:`expected_lag1`)
+                                                                      (:func:`~galileo_jax.criticism.noise.expected_lag1`)
 
 and zero beyond lag 1: an MA(1) process. The *standardised residual* is z_k = r_k / s, with
-unit variance and lag-1 correlation rho under the model (:func:`standardised_residuals`).
+unit variance and lag-1 correlation rho under the model (:func:`~galileo_jax.criticism.noise.standardised_residuals`).
 
 Tests for structure (each on the masked samples of one trace in one phase; sources below):
 
@@ -68,13 +68,13 @@ The tracking noise of the tests. ``sd_p`` comes from the tracker
 (:func:`galileo_jax.observe.tracks.estimate_noise_sd`: third differences of the position
 track, leaving out those beyond 3.5 robust SDs, because without a model of the motion a
 tracking glitch and a change of acceleration look alike). Here the fitted motion is known, so
-:func:`tracking_noise` measures the noise again from the third differences of the *residual*
+:func:`~galileo_jax.criticism.noise.tracking_noise` measures the noise again from the third differences of the *residual*
 position track (observed - simulated, integrated from the velocity residuals), where the
 model's own changes of acceleration cancel and nothing is left out, so glitches count:
 sd_r^2 = mean(d3^2) / 20 - 0.3 dt^2 sd_model^2 (the white floor adds 6 dt^2 sd_model^2 to
 E d3^2). Where sd_r exceeds sd_p by more than chance (mean(d3^2) against its distribution under
 the noise model with sd_p, c chi2(nu) by Satterthwaite from the autocovariance of d3 at lags
-0-3, at level :data:`NOISE_LEVEL`), the tests use sd_r: the tracker
+0-3, at level :data:`~galileo_jax.criticism.noise.NOISE_LEVEL`), the tests use sd_r: the tracker
 underestimated its noise (measured on the real 10.3 degree roll-slip clip: 4 of 41 third
 differences left out, sd 1.2 mm from the tracker, 2.7 mm with them), and a size test against
 the smaller SD would blame the model for the tracker's glitches. A smooth misfit barely moves
@@ -102,384 +102,37 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import linalg, special
 
-from galileo_jax.likelihood import DEFAULT_SD_MODEL, event_jumps, event_sd
+from galileo_jax.criticism.noise import (
+    SD_MODEL,
+    expected_lag1,
+    noise_floor,
+    residual_sd,
+    standardised_residuals,
+    tracking_noise,
+)
+from galileo_jax.criticism.phases import (
+    ALL,
+    MIN_DISPLACEMENT,
+    PHASES,
+    REST_SPEED,
+    impact_sample,
+    motion_phases,
+    phase_spans,
+)
+from galileo_jax.criticism.structure import TEST_LABELS, TESTS, chi2_test, cusum_test, lag1_test, runs_test
+from galileo_jax.likelihood import event_sd
 from galileo_jax.observation import Observation, trace_names
 
-#: Motion phases in display (roughly chronological) order.
-PHASES = ("before_release", "ramp", "floor", "collision", "rest")
-#: Label of the table rows that pool every masked sample of a trace.
-ALL = "all"
-#: Tests run on every row, in the order of the row's p-value fields.
-TESTS = ("runs", "lag1", "cusum", "chi2")
-#: Names of the tests as the verdict writes them.
-TEST_LABELS = {"runs": "runs test", "lag1": "lag-1 autocorrelation", "cusum": "CUSUM", "chi2": "chi-square"}
-#: Default speed (m/s) below which a simulated object counts as at rest.
-REST_SPEED = 0.02
-#: Default model-error floor in m/s (:data:`galileo_jax.likelihood.DEFAULT_SD_MODEL`).
-SD_MODEL = DEFAULT_SD_MODEL
 #: Smallest phase (masked samples) that gets its own table row.
 MIN_SAMPLES = 3
-#: Displacement (m) below which the verdict describes a velocity offset instead of a distance.
-MIN_DISPLACEMENT = 0.01
+
 
 _PHASE_WORDS = {"before_release": "before the release", "ramp": "on the ramp", "floor": "on the floor",
                 "collision": "after the collision", "rest": "where the simulation is at rest",
                 ALL: "over the whole fit window"}
 
 
-# ---------------------------------------------------------------------------- phases
-def _sample_kinematics(poses: np.ndarray, frame_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(speed, x_mid), each (n_objects, N-1): centre speed in m/s and mean centre x in m per sample."""
-    p = np.asarray(poses, np.float64)[..., :2]
-    dt = np.diff(np.asarray(frame_times, np.float64))
-    speed = np.linalg.norm(np.diff(p, axis=0), axis=-1) / dt[:, None]
-    x_mid = 0.5 * (p[1:, :, 0] + p[:-1, :, 0])
-    return speed.T, x_mid.T
-
-
-def impact_sample(poses: np.ndarray, frame_times: np.ndarray, release_time: float,
-                  rest_speed: float = REST_SPEED) -> int | None:
-    """Index of the impact's velocity sample: the first sample after release where object 2 moves.
-
-    Args:
-        poses: (N, n_objects, 3) simulated (x m, z m, pitch rad) at the frame times.
-        frame_times: (N,) frame times in s.
-        release_time: video time (s) at which the objects are released.
-        rest_speed: speed (m/s) above which object 2 counts as moving.
-
-    Returns:
-        Sample index k (the interval between frames k and k + 1), or None with fewer than two
-        objects or if object 2 never moves in the simulation.
-    """
-    poses = np.asarray(poses, np.float64)
-    if poses.ndim != 3 or poses.shape[1] < 2:
-        return None
-    speed, _ = _sample_kinematics(poses, frame_times)
-    after = np.asarray(frame_times, np.float64)[1:] > release_time
-    hit = np.flatnonzero(after & (speed[1] > rest_speed))
-    return int(hit[0]) if hit.size else None
-
-
-def motion_phases(poses: np.ndarray, frame_times: np.ndarray, release_time: float, n_objects: int,
-                  rest_speed: float = REST_SPEED, collision_halfwidth: int = 2) -> np.ndarray:
-    """Label every velocity sample of every object with the motion phase of the SIMULATED fit.
-
-    The phases come from the fitted simulation, not from the noisy observation, so the same
-    samples are compared in both. Velocity sample k spans frames k and k + 1 (as in the
-    profile). Rules, in order of precedence:
-
-    * ``"before_release"``: the sample ends at or before the release (t[k+1] <= release_time);
-    * ``"collision"``: with two or more objects, |k - k_c| <= collision_halfwidth where k_c is
-      :func:`impact_sample` (first sample where object 2's simulated speed exceeds
-      ``rest_speed``); applies to every object;
-    * ``"rest"``: simulated centre speed |p[k+1] - p[k]| / dt < ``rest_speed``;
-    * ``"ramp"``: moving with the sample's mean centre x < 0 (the ramp's foot is at x = 0);
-    * ``"floor"``: moving with mean centre x >= 0.
-
-    Args:
-        poses: (N, n_objects, 3) simulated pose (x m, z m, pitch rad) at the frame times, world
-            frame: x horizontal and positive downhill, z up.
-        frame_times: (N,) frame times in s.
-        release_time: video time (s) at which the objects are released.
-        n_objects: number of objects (must match ``poses``).
-        rest_speed: speed in m/s below which an object is at rest.
-        collision_halfwidth: half-width of the collision window, in samples.
-
-    Returns:
-        (n_objects, N-1) array of phase names (str), values from :data:`PHASES`.
-
-    Raises:
-        ValueError: inconsistent shapes or negative parameters.
-    """
-    poses = np.asarray(poses, np.float64)
-    t = np.asarray(frame_times, np.float64)
-    if poses.ndim != 3 or poses.shape[2] < 2 or poses.shape[1] != n_objects:
-        raise ValueError(f"poses has shape {poses.shape}, expected (N, {n_objects}, 3)")
-    if t.shape != (poses.shape[0],) or t.size < 2:
-        raise ValueError(f"frame_times has shape {t.shape}, expected ({poses.shape[0]},) with N >= 2")
-    if rest_speed < 0 or collision_halfwidth < 0:
-        raise ValueError("rest_speed and collision_halfwidth must be >= 0")
-    speed, x_mid = _sample_kinematics(poses, t)
-    labels = np.where(x_mid < 0.0, "ramp", "floor").astype("<U14")
-    labels[speed < rest_speed] = "rest"
-    kc = impact_sample(poses, t, release_time, rest_speed)
-    if kc is not None:
-        k = np.arange(t.size - 1)
-        labels[:, np.abs(k - kc) <= collision_halfwidth] = "collision"
-    labels[:, t[1:] <= release_time] = "before_release"
-    return labels
-
-
-def phase_spans(phases: np.ndarray, times: np.ndarray) -> list[list[dict[str, Any]]]:
-    """Contiguous runs of one phase per object, as [{"phase", "start", "end", "first", "last"}].
-
-    Args:
-        phases: (n_objects, M) phase labels (:func:`motion_phases`).
-        times: (M,) time of each velocity sample in s (e.g. mid-frame).
-
-    Returns:
-        Per object, the list of spans: start/end time in s (edges halfway between samples),
-        first/last sample index (inclusive).
-    """
-    times = np.asarray(times, np.float64)
-    if times.size == 0:
-        return [[] for _ in range(len(phases))]
-    half = np.diff(times) / 2.0 if times.size > 1 else np.array([0.5])
-    edges = np.concatenate([[times[0] - half[0]], times[:-1] + half, [times[-1] + half[-1]]])
-    out = []
-    for row in np.asarray(phases):
-        spans, start = [], 0
-        for k in range(1, row.size + 1):
-            if k == row.size or row[k] != row[start]:
-                spans.append({"phase": str(row[start]), "start": float(edges[start]), "end": float(edges[k]),
-                              "first": start, "last": k - 1})
-                start = k
-        out.append(spans)
-    return out
-
-
-# ---------------------------------------------------------------------------- noise model
-def residual_sd(observation: Observation, sd_model: float = SD_MODEL) -> np.ndarray:
-    """(2n,) SD s_i = sqrt(2 sd_p_i^2 fps^2 + sd_model^2) of a velocity residual, m/s."""
-    vsd = np.asarray(observation.velocity_sd, np.float64)
-    return np.sqrt(vsd**2 + float(sd_model) ** 2)
-
-
-def expected_lag1(observation: Observation, sd_model: float = SD_MODEL) -> np.ndarray:
-    """(2n,) lag-1 correlation rho_i = -sd_p_i^2 fps^2 / s_i^2 of the residuals under the model."""
-    vsd = np.asarray(observation.velocity_sd, np.float64)
-    s2 = vsd**2 + float(sd_model) ** 2
-    return -0.5 * vsd**2 / s2
-
-
-def sample_sd(observation: Observation, sd_model: float = SD_MODEL, sd_events: np.ndarray | None = None) -> np.ndarray:
-    """(2n, N-1) SD of every velocity residual, m/s: sqrt(s_i^2 + sd_events^2), s_i from
-    :func:`residual_sd` and ``sd_events`` the extra model error around contact events
-    (:func:`galileo_jax.likelihood.event_sd`; None: 0)."""
-    s = residual_sd(observation, sd_model)[:, None] * np.ones(np.shape(observation.profile))
-    if sd_events is not None:
-        ev = np.asarray(sd_events, np.float64)
-        if ev.shape != s.shape:
-            raise ValueError(f"sd_events has shape {ev.shape}, expected {s.shape} like the profile")
-        s = np.sqrt(s**2 + ev**2)
-    return s
-
-
-def standardised_residuals(observation: Observation, simulated: np.ndarray, sd_model: float = SD_MODEL,
-                           sd_events: np.ndarray | None = None) -> np.ndarray:
-    """(2n, N-1) standardised residuals z = (observed - simulated) / s (unitless), s from :func:`sample_sd`.
-
-    Raises:
-        ValueError: shape mismatch, or a trace with zero noise and zero model floor.
-    """
-    obs = np.asarray(observation.profile, np.float64)
-    sim = np.asarray(simulated, np.float64)
-    if sim.shape != obs.shape:
-        raise ValueError(f"simulated profile has shape {sim.shape}, expected {obs.shape} like the observation")
-    s = sample_sd(observation, sd_model, sd_events)
-    if not np.all(s > 0):
-        raise ValueError("a trace has zero position noise and zero model floor: give sd_model > 0")
-    return (obs - sim) / s
-
-
-def noise_floor(observation: Observation) -> float:
-    """RMSE (m/s) a perfect model would reach: root mean square of the tracking-noise velocity SDs."""
-    return float(np.sqrt(np.mean(np.asarray(observation.velocity_sd, np.float64) ** 2)))
-
-
-#: Level of the test that the tracker underestimated a trace's noise (:func:`tracking_noise`).
-NOISE_LEVEL = 0.01
-#: Velocity jump (m/s, second difference of an object's simulated velocity) that marks a change
-#: of acceleration in the simulation: :func:`tracking_noise` leaves out third differences near
-#: one, where a mistimed impact or ramp's foot would pass for tracking noise.
-SIM_EVENT_JUMP = 0.05
-
-
-def tracking_noise(observation: Observation, simulated: np.ndarray, sd_model: float = SD_MODEL,
-                   level: float = NOISE_LEVEL) -> dict[str, np.ndarray]:
-    """The tracking noise of each trace measured again from the residual track (module docstring).
-
-    The velocity residuals r of each trace's masked, finite samples are integrated into the
-    residual position track (per run of consecutive samples), whose third differences d3 (those
-    not within one sample of a change of the simulated motion, :data:`SIM_EVENT_JUMP`) give
-    sd_r^2 = mean(d3^2) / 20 - 0.3 dt^2 sd_model^2 (floored at 0), with dt the mean frame
-    interval. sd_r replaces the tracker's ``position_sd`` when mean(d3^2) exceeds the upper
-    ``level`` quantile of its distribution under the noise model with sd_p (Satterthwaite:
-    gamma_0 chi2(nu) / nu, gamma_h the autocovariance of d3 at lag h, nu = m gamma_0^2 /
-    (gamma_0^2 + 2 sum_{h=1..3} gamma_h^2) for m third differences).
-
-    Args:
-        observation: the observation (profile (2n, N-1) m/s, position_sd (2n,) m, mask, frame_times).
-        simulated: (2n, N-1) simulated profile, m/s.
-        sd_model: white model-error floor of the noise model, m/s.
-        level: false-alarm rate of the replacement per trace under the noise model.
-
-    Returns:
-        {"tracker": (2n,) the tracker's SD (m), "residual": (2n,) sd_r (m; nan with fewer than
-        4 third differences), "p": (2n,) p-value of sd_r^2 / sd_p^2 (nan: not computable),
-        "reestimated": (2n,) bool, "used": (2n,) the SD the tests use (m)}.
-    """
-    obs = np.asarray(observation.profile, np.float64)
-    sim = np.asarray(simulated, np.float64)
-    t = np.asarray(observation.frame_times, np.float64)
-    dt_all = np.diff(t)
-    tracker = np.asarray(observation.position_sd, np.float64)
-    mask = np.asarray(observation.mask, bool)
-    n_traces = obs.shape[0]
-    events = event_jumps(sim, SIM_EVENT_JUMP) > 0  # (n, N-1)
-    near = events.copy()
-    near[:, 1:] |= events[:, :-1]
-    near[:, :-1] |= events[:, 1:]
-    residual, p = np.full(n_traces, np.nan), np.full(n_traces, np.nan)
-    for i in range(n_traces):
-        ok = mask & np.isfinite(obs[i]) & np.isfinite(sim[i])
-        d3, dts = [], []
-        # runs of consecutive samples: [start, stop) of each
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
-        for a, b in zip(edges[::2], edges[1::2]):
-            pos = np.concatenate([[0.0], np.cumsum((obs[i, a:b] - sim[i, a:b]) * dt_all[a:b])])
-            if pos.size >= 4:
-                # d3[k] uses positions k..k+3, i.e. velocity samples a+k .. a+k+2
-                clear = ~(near[i // 2, a:b - 2] | near[i // 2, a + 1:b - 1] | near[i // 2, a + 2:b])
-                d3.append(np.diff(pos, 3)[clear])
-                dts.append(dt_all[a:b])
-        if not d3:
-            continue
-        d3 = np.concatenate(d3)
-        if d3.size < 4:
-            continue
-        dt = float(np.mean(np.concatenate(dts)))
-        ms, floor2 = float(np.mean(d3**2)), dt**2 * float(sd_model) ** 2
-        residual[i] = math.sqrt(max(ms / 20.0 - 0.3 * floor2, 0.0))
-        if tracker[i] > 0:
-            # autocovariance of d3 under the noise model, lags 0..3: white position noise
-            # (20, -15, 6, -1) sd_p^2 plus the integrated white floor (6, -4, 1, 0) dt^2 sd_model^2
-            gamma = np.array([20.0, -15.0, 6.0, -1.0]) * tracker[i] ** 2 + np.array([6.0, -4.0, 1.0, 0.0]) * floor2
-            nu = d3.size * gamma[0] ** 2 / (gamma[0] ** 2 + 2.0 * float(np.sum(gamma[1:] ** 2)))
-            p[i] = float(special.chdtrc(nu, nu * ms / gamma[0]))
-    reest = np.isfinite(p) & (p < level) & (residual > tracker)
-    return {"tracker": tracker, "residual": residual, "p": p, "reestimated": reest,
-            "used": np.where(reest, residual, tracker)}
-
-
-def _correlation(idx: np.ndarray, rho: float) -> np.ndarray:
-    """(m, m) model correlation of the standardised residuals at sample indices ``idx`` (sorted)."""
-    idx = np.asarray(idx)
-    r = np.eye(idx.size)
-    adj = np.abs(idx[:, None] - idx[None, :]) == 1
-    r[adj] = rho
-    return r
-
-
-# ---------------------------------------------------------------------------- tests
-def runs_test(z: np.ndarray) -> float:
-    """One-sided (too few runs) exact Wald-Wolfowitz runs test on the signs of ``z``.
-
-    With n1 positive and n2 negative signs (zeros dropped) and R runs, under exchangeability
-    (Swed & Eisenhart, *Ann. Math. Stat.* 14, 1943), with C = binomial coefficient:
-    P(R = 2k) = 2 C(n1-1, k-1) C(n2-1, k-1) / C(n1+n2, n1),
-    P(R = 2k+1) = [C(n1-1, k) C(n2-1, k-1) + C(n1-1, k-1) C(n2-1, k)] / C(n1+n2, n1).
-
-    Returns:
-        p = P(R <= R_observed); 1.0 when all signs agree (one arrangement) or n < 2.
-    """
-    z = np.asarray(z, np.float64)
-    s = np.sign(z[np.isfinite(z) & (z != 0)])
-    n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
-    if n1 == 0 or n2 == 0:
-        return 1.0
-    r_obs = 1 + int(np.sum(s[1:] != s[:-1]))
-    lg = special.gammaln(np.arange(n1 + n2 + 2, dtype=np.float64))  # lg[m] = log (m - 1)!
-
-    def log_comb(a: int, b: np.ndarray) -> np.ndarray:
-        """log C(a, b) for integer a >= 0 and an integer array b; -inf where b < 0 or b > a."""
-        ok = (b >= 0) & (b <= a)
-        bb = np.where(ok, b, 0)
-        return np.where(ok, lg[a + 1] - lg[bb + 1] - lg[a - bb + 1], -np.inf)
-
-    r = np.arange(2, r_obs + 1)
-    k = r // 2
-    logp = np.where(r % 2 == 0, math.log(2.0) + log_comb(n1 - 1, k - 1) + log_comb(n2 - 1, k - 1),
-                    np.logaddexp(log_comb(n1 - 1, k) + log_comb(n2 - 1, k - 1),
-                                 log_comb(n1 - 1, k - 1) + log_comb(n2 - 1, k)))
-    total = lg[n1 + n2 + 1] - lg[n1 + 1] - lg[n2 + 1]
-    return float(min(1.0, np.exp(np.logaddexp.reduce(logp) - total)))
-
-
-def lag1_test(z: np.ndarray, idx: np.ndarray, rho: float) -> tuple[float, float]:
-    """Lag-1 autocorrelation of ``z`` against its model value ``rho``, one-sided for excess.
-
-    r1 = [sum over adjacent pairs (z_k - zbar)(z_{k+1} - zbar) / n_pairs] / [sum (z - zbar)^2 / n],
-    pairs only where the sample indices differ by one; z = (r1 - rho) sqrt(n_pairs / w),
-    w = 1 - 3 rho^2 + 4 rho^4 (Bartlett, MA(1); module docstring).
-
-    Args:
-        z: (m,) standardised residuals, in time order.
-        idx: (m,) their sample indices (to find adjacent pairs).
-        rho: expected lag-1 correlation under the model.
-
-    Returns:
-        (r1, p); (nan, nan) with fewer than 2 adjacent pairs or zero spread.
-    """
-    z = np.asarray(z, np.float64)
-    idx = np.asarray(idx)
-    pairs = np.flatnonzero(np.diff(idx) == 1)
-    if pairs.size < 2:
-        return math.nan, math.nan
-    d = z - z.mean()
-    var = np.mean(d**2)
-    if var <= 0:
-        return math.nan, math.nan
-    r1 = float(np.mean(d[pairs] * d[pairs + 1]) / var)
-    w = 1.0 - 3.0 * rho**2 + 4.0 * rho**4
-    stat = (r1 - rho) * math.sqrt(pairs.size / w)
-    return r1, float(special.ndtr(-stat))
-
-
-def sup_brownian_sf(x: float) -> float:
-    """P(sup_{0<=t<=1} |W(t)| >= x) for standard Brownian motion W (module docstring)."""
-    if x <= 0:
-        return 1.0
-    if x < 1.0:
-        k = np.arange(50)
-        terms = (-1.0) ** k / (2 * k + 1) * np.exp(-(np.pi**2) * (2 * k + 1) ** 2 / (8.0 * x * x))
-        return float(min(1.0, max(0.0, 1.0 - 4.0 / np.pi * np.sum(terms))))
-    j = np.arange(50)
-    return float(min(1.0, 4.0 * np.sum((-1.0) ** j * special.ndtr(-(2 * j + 1) * x))))
-
-
-def cusum_test(z: np.ndarray, idx: np.ndarray, rho: float) -> tuple[float, float]:
-    """CUSUM of the residuals against Brownian motion: (max_k |S_k| / sqrt(n), p).
-
-    S_k are the partial sums of the whitened residuals e = L^-1 z, R = L L^T the model
-    correlation (:func:`_correlation`) at ``idx``; equivalent for large n to
-    max|sum z| / sqrt(n (1 + 2 rho)) (module docstring).
-    """
-    z = np.asarray(z, np.float64)
-    if z.size < 2:
-        return math.nan, math.nan
-    low = np.linalg.cholesky(_correlation(idx, rho))
-    e = linalg.solve_triangular(low, z, lower=True)
-    stat = float(np.max(np.abs(np.cumsum(e))) / math.sqrt(z.size))
-    return stat, sup_brownian_sf(stat)
-
-
-def chi2_test(z: np.ndarray, idx: np.ndarray, rho: float) -> tuple[float, float]:
-    """Excess size: (T = sum z^2, p) with T ~ c chi2(nu) (Satterthwaite; module docstring)."""
-    z = np.asarray(z, np.float64)
-    n = z.size
-    if n == 0:
-        return math.nan, math.nan
-    n_pairs = int(np.sum(np.diff(np.asarray(idx)) == 1))
-    tr_r2 = n + 2.0 * n_pairs * rho**2
-    c, nu = tr_r2 / n, n * n / tr_r2
-    t = float(np.sum(z**2))
-    return t, float(special.chdtrc(nu, t / c))
-
-
-# ---------------------------------------------------------------------------- the table
 @dataclass(frozen=True)
 class ResidualRow:
     """Residual summary and structure tests of one trace in one phase (or "all").
@@ -488,7 +141,7 @@ class ResidualRow:
         trace: trace name, e.g. "object 2 x" (:func:`galileo_jax.observation.trace_names`).
         object: object number, 1-based.
         axis: "x" (horizontal, positive downhill) or "y" (vertical, up).
-        phase: one of :data:`PHASES` or :data:`ALL`.
+        phase: one of :data:`~galileo_jax.criticism.phases.PHASES` or :data:`~galileo_jax.criticism.phases.ALL`.
         n: number of masked samples in the phase.
         rms_z: root mean square of the standardised residuals (about 1 under the model).
         mean_z: mean standardised residual (bias; about 0 under the model).
@@ -506,7 +159,7 @@ class ResidualRow:
         p_min: smallest of them.
         p_adjusted: Bonferroni-adjusted p_min over all tests in the table.
         structured: p_adjusted < alpha.
-        position_sd: tracking-noise SD (m) of the trace that the tests used (:func:`tracking_noise`).
+        position_sd: tracking-noise SD (m) of the trace that the tests used (:func:`~galileo_jax.criticism.noise.tracking_noise`).
         position_sd_tracker: the tracker's own estimate (m).
         noise_reestimated: True where the tests used the SD measured from the residual track.
     """
@@ -541,7 +194,7 @@ class ResidualRow:
 
     @property
     def worst_test(self) -> str:
-        """Name (from :data:`TESTS`) of the test with the smallest p-value."""
+        """Name (from :data:`~galileo_jax.criticism.structure.TESTS`) of the test with the smallest p-value."""
         ps = [getattr(self, f"p_{t}") for t in TESTS]
         ps = [p if np.isfinite(p) else np.inf for p in ps]
         return TESTS[int(np.argmin(ps))]
@@ -586,8 +239,8 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
     """Residual summary and structure tests per trace and motion phase.
 
     For each trace (rows of the profile: "object 1 x", "object 1 y", ...) one row per phase
-    of :data:`PHASES` with at least :data:`MIN_SAMPLES` masked samples (phase of the trace's
-    object, from ``phases``), then one row for phase :data:`ALL` (every masked sample).
+    of :data:`~galileo_jax.criticism.phases.PHASES` with at least :data:`MIN_SAMPLES` masked samples (phase of the trace's
+    object, from ``phases``), then one row for phase :data:`~galileo_jax.criticism.phases.ALL` (every masked sample).
     Samples whose observed value is not finite are skipped. See the module docstring for the
     tests and the multiple-testing rule that sets ``structured``.
 
@@ -596,14 +249,14 @@ def residual_table(observation: Observation, simulated: np.ndarray, sd_model: fl
             (N-1,), frame_times (N,) in s, fps).
         simulated: (2n, N-1) simulated profile at the fitted parameters, m/s.
         sd_model: model-error floor of the likelihood, m/s.
-        phases: (n, N-1) phase labels (:func:`motion_phases`); None gives the "all" rows only.
+        phases: (n, N-1) phase labels (:func:`~galileo_jax.criticism.phases.motion_phases`); None gives the "all" rows only.
         alpha: family-wise significance level of the whole table.
         reestimate_noise: measure each trace's tracking noise again from the residual track and
-            use it where the tracker's estimate is significantly too small (:func:`tracking_noise`);
+            use it where the tracker's estimate is significantly too small (:func:`~galileo_jax.criticism.noise.tracking_noise`);
             False: the tracker's ``position_sd`` as it is.
 
     Returns:
-        List of :class:`ResidualRow`, ordered by trace, then phase in :data:`PHASES` order, then "all".
+        List of :class:`ResidualRow`, ordered by trace, then phase in :data:`~galileo_jax.criticism.phases.PHASES` order, then "all".
 
     Raises:
         ValueError: shape mismatches, sd_model < 0, alpha outside (0, 1), or zero noise.
@@ -679,7 +332,6 @@ def worst_row(table: Sequence[ResidualRow]) -> ResidualRow | None:
     return min(cands, key=lambda r: (r.axis != "x", r.phase == ALL, r.p_min, -r.chi2_excess))
 
 
-# ---------------------------------------------------------------------------- the verdict
 def format_p(p: float) -> str:
     """A p-value for a sentence, with its relation: "= 0.2", "= 0.013", "= 1e-9", "< 1e-300"."""
     if not np.isfinite(p):
@@ -757,7 +409,7 @@ def verdict(table: Sequence[ResidualRow], min_displacement: float = MIN_DISPLACE
 
 def noise_note(table: Sequence[ResidualRow]) -> str:
     """A sentence naming the traces tested with the tracking noise measured from the residual
-    track (:func:`tracking_noise`), with both SDs in mm; "" when there are none."""
+    track (:func:`~galileo_jax.criticism.noise.tracking_noise`), with both SDs in mm; "" when there are none."""
     rows = [r for r in table if r.phase == ALL and r.noise_reestimated]
     if not rows:
         return ""
@@ -793,7 +445,7 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
         {"phase", "start", "end", "first", "last"}, times in s at mid-frame samples),
         "impact_time" (s or None)}, "table": list of row dicts (:meth:`ResidualRow.as_dict`,
         NaN as None), "verdict": str, "looks_like_noise": bool, "tracking_noise_m": {trace:
-        {"tracker", "used" (m), "reestimated"}} (:func:`tracking_noise`), "alpha", "sd_model",
+        {"tracker", "used" (m), "reestimated"}} (:func:`~galileo_jax.criticism.noise.tracking_noise`), "alpha", "sd_model",
         "noise_floor" (m/s)}.
     """
     t = np.asarray(observation.frame_times, np.float64)
@@ -825,9 +477,13 @@ def summarize(observation: Observation, simulated: np.ndarray, poses: np.ndarray
 #: rendered video without a hidden effect) that MJX resolves one frame off the renderer leaves
 #: a residual as large as the jump itself (0.11 m/s measured).
 GATE_JUMP = 0.05
+
+
 #: A fit is adequate when its RMSE away from contact events is within this factor of the noise
-#: floor (:func:`noise_floor`) ...
+#: floor (:func:`~galileo_jax.criticism.noise.noise_floor`) ...
 ADEQUATE_RATIO = 1.3
+
+
 #: ... and its RMSE over all fitted samples within this one (measured on rendered videos without
 #: a hidden effect: 0.4-1.3x, 2.3x where MJX and the renderer part at a second collision; see
 #: :mod:`galileo_jax.criticism.diagnosis`, step 3).

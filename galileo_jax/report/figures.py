@@ -70,7 +70,7 @@ def profile_figure(path: str | Path, times: np.ndarray, observed: np.ndarray, si
     _save(fig, path, title)
 
 
-#: Shading colour of each motion phase (:data:`galileo_jax.criticism.residuals.PHASES`) in residual figures.
+#: Shading colour of each motion phase (:data:`galileo_jax.criticism.phases.PHASES`) in residual figures.
 PHASE_COLORS = {"before_release": "0.75", "ramp": "tab:blue", "floor": "tab:green", "collision": "tab:red",
                 "rest": "tab:purple"}
 
@@ -97,8 +97,8 @@ def residual_figure(path: str | Path, times: np.ndarray, standardised_residuals:
         path: output PNG path (written atomically).
         times: (T,) time of each velocity sample in s (mid-frame).
         standardised_residuals: (2n, T) (observed - simulated) / sd per trace, rows as the
-            profile (obj1 x, obj1 y, obj2 x, ...); see :func:`galileo_jax.criticism.residuals.standardised_residuals`.
-        phases: (n, T) phase labels per object (:func:`galileo_jax.criticism.residuals.motion_phases`).
+            profile (obj1 x, obj1 y, obj2 x, ...); see :func:`galileo_jax.criticism.noise.standardised_residuals`.
+        phases: (n, T) phase labels per object (:func:`galileo_jax.criticism.phases.motion_phases`).
         mask: (T,) bool, samples used in the fit (only these are plotted).
         title: figure title.
         flagged: iterable of (trace name, phase) pairs to mark, e.g.
@@ -196,7 +196,7 @@ def model_comparison_figure(path: str | Path, models: list[dict], title: str = "
         models: one dict per model, the first being the base model, with keys "name" (str),
             "rmse" (m/s, RMS of observed - simulated over the fit window), "loglik" (nats at
             the fit; None/NaN if not available) and "noise_floor" (m/s, the RMSE a perfect
-            model would reach, e.g. :func:`galileo_jax.criticism.residuals.noise_floor`); optionally
+            model would reach, e.g. :func:`galileo_jax.criticism.noise.noise_floor`); optionally
             "loglik_reference" (nats): the base model's log-likelihood on the same simulation
             engine, which this model's gain is measured from (log-likelihoods from different
             engines are not comparable); without it, the first model's.
