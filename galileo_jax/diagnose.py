@@ -158,7 +158,7 @@ def calibration_lines(diag) -> list[str]:
 def predictive_band(fit, key, n_draws: int = 32) -> list[np.ndarray]:
     """Per video the (2, 2n, N-1) 5% and 95% quantiles of the profiles simulated at ``n_draws``
     draws from the fit's Gauss-Newton approximation (a 90% band of the parameter uncertainty)."""
-    from galileo_jax.inference.grad import gauss_newton_draws
+    from galileo_jax.inference.covariance import gauss_newton_draws
 
     draws = gauss_newton_draws(fit.result, fit.problem.space, key, n_draws)
     bands = []

@@ -145,7 +145,7 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
 def gauss_newton_posterior(res, space, key) -> Posterior:
     """:data:`APPROXIMATION_DRAWS` draws of grad's Gauss-Newton normal approximation (one chain)."""
     from galileo_jax.inference import summary
-    from galileo_jax.inference.grad import gauss_newton_draws
+    from galileo_jax.inference.covariance import gauss_newton_draws
 
     k_draw, k_mass = jax.random.split(jax.random.fold_in(key, 13))
     theta = gauss_newton_draws(res, space, k_draw, APPROXIMATION_DRAWS)[None]
@@ -163,7 +163,7 @@ def grad_estimate(res, space, key, cfg: FitConfig) -> tuple[dict, dict, np.ndarr
     """A :class:`~galileo_jax.inference.grad.GradResult` as a fit reports it: (parameters dict,
     diagnostics, theta (d,), ``cfg.prediction.draws`` Gauss-Newton draws (S, d) from ``key``)."""
     from galileo_jax.inference import summary
-    from galileo_jax.inference.grad import gauss_newton_draws
+    from galileo_jax.inference.covariance import gauss_newton_draws
 
     params, diag = _with_estimate(summary.summarize_grad(res, space), "mean")
     return params, diag, np.asarray(res.theta), gauss_newton_draws(res, space, key, cfg.prediction.draws)
@@ -534,7 +534,8 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     key = jax.random.PRNGKey(seed)
     k_run, k_draw = jax.random.split(key)
     if method == "grad":
-        from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
+        from galileo_jax.inference.covariance import gauss_newton_draws
+        from galileo_jax.inference.grad import fit_grad
 
         res = fit_grad(joint, k_run, n_starts=cfg.grad.starts, n_screen=max(cfg.grad.screen, cfg.grad.starts),
                        jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps)

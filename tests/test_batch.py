@@ -50,7 +50,7 @@ SHARDED = textwrap.dedent("""
     enable_compilation_cache()
     from test_batch import FIT, scene
     from galileo_jax.inference.batch import _pad_videos, batch_problems, solve_batch, stack_data, video_mesh
-    from galileo_jax.inference.grad import latin_hypercube_starts
+    from galileo_jax.inference.starts import latin_hypercube_starts
     with open({observations!r}, "rb") as f:  # the parent's videos (simulating them again compiles MJX anew)
         observations = pickle.load(f)
     problems = batch_problems(scene(), observations, engine="mujoco")

@@ -9,7 +9,7 @@ the truth's place among the Gauss-Newton draws is scored with the benchmark's ow
 about nine times in ten (measured: 18 of 20, and 8 of 20 for the 50% intervals); with half of
 it claimed (the 90% interval then spans +-0.82 SD, P = 0.59) about half as often (measured: 10
 of 20). grad's own intervals are widened where the residuals are correlated or larger than
-the likelihood says (:func:`~galileo_jax.inference.grad.robust_covariance`), which repairs
+the likelihood says (:func:`~galileo_jax.inference.covariance.robust_covariance`), which repairs
 exactly this miscalibration: the check is made on the plain Gauss-Newton covariance, and
 grad's intervals are checked to hold the truth with half the noise claimed, too (measured:
 90% coverage 0.90 / 0.50 for the plain covariance with the noise / half of it claimed, 0.95 /
@@ -31,7 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from galileo_jax.inference.grad import fit_grad, gauss_newton_draws
+from galileo_jax.inference.covariance import gauss_newton_draws
+
+from galileo_jax.inference.grad import fit_grad
 from galileo_jax.inference.problem import Problem, simulated_observation
 from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import scene_from_dict

@@ -169,7 +169,7 @@ def test_local_screen_draws_near_the_start_except_effect_parameters():
     """``latin_hypercube_starts(around=...)``: base coordinates within +-spread of their range
     around the start (clipped to the bounds), effect parameters over their whole range, one
     point per stratum of every coordinate (a Latin hypercube)."""
-    from galileo_jax.inference.grad import latin_hypercube_starts
+    from galileo_jax.inference.starts import latin_hypercube_starts
     from galileo_jax.params import ParamSpace
 
     scene = scene_from_dict({"ramp": {"angle_deg": 20, "length": 2.0},
@@ -198,7 +198,7 @@ def test_local_screen_draws_near_the_start_except_effect_parameters():
 
 
 def test_gauss_newton_covariance_gives_a_blown_up_coordinate_no_made_up_interval():
-    from galileo_jax.inference.grad import gauss_newton_covariance
+    from galileo_jax.inference.covariance import gauss_newton_covariance
 
     rng = np.random.default_rng(0)
     jac = rng.normal(size=(50, 3))
@@ -228,7 +228,7 @@ def test_sandwich_widens_intervals_by_the_residuals_autocorrelation_only():
     residuals of lag-1 correlation rho the mean's true variance is (1 + rho) / (1 - rho) times
     the Gauss-Newton one (x19 at rho 0.9: SD x4.4), which the sandwich recovers, in part (a
     finite bandwidth); residuals smaller than the claimed noise never narrow an interval."""
-    from galileo_jax.inference.grad import gauss_newton_covariance, robust_covariance
+    from galileo_jax.inference.covariance import gauss_newton_covariance, robust_covariance
 
     T, M = 4, 200
     rng = np.random.default_rng(3)
@@ -284,7 +284,7 @@ def test_diverse_best_keeps_a_start_in_each_region_best_first():
     the separation away from every chosen one (release-time coordinates not compared); a
     cluster of good points in one region gives one start, not all of them; too few distinct
     regions are filled up with the best of the rest."""
-    from galileo_jax.inference.grad import diverse_best, unit_box
+    from galileo_jax.inference.starts import diverse_best, unit_box
 
     lo, hi = np.array([0.0, 0.0, -1.0, -0.1]), np.array([1.0, 1.0, 1.0, 0.1])
     kinds = ("friction", "friction", "phi", "release")

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from galileo_jax.inference.grad import Z90, gauss_newton_covariance
+from galileo_jax.inference.covariance import Z90, gauss_newton_covariance
 from galileo_jax.inference.problem import fd_jacobian_fn
 from galileo_jax.inference.profile import PROFILE_TOLERANCE, held_lm_solver, profile_check
 

@@ -40,11 +40,26 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from galileo_jax.inference.grad import (MAX_LM_STARTS, GradResult, _lm_solver, diverse_best,
-                                        gauss_newton_covariance, grad_result, latin_hypercube_starts, polish_many,
-                                        residual_jacobian, unit_box, widened)
-from galileo_jax.inference.problem import (DEFAULT_FD_STEP, Engine, Problem, ProblemData, cached_jit,
-                                           check_residual_args, fd_jacobian_fn, map_batch)
+from galileo_jax.inference.covariance import gauss_newton_covariance, widened
+from galileo_jax.inference.grad import (
+    MAX_LM_STARTS,
+    GradResult,
+    _lm_solver,
+    grad_result,
+    polish_many,
+    residual_jacobian,
+)
+from galileo_jax.inference.problem import (
+    DEFAULT_FD_STEP,
+    Engine,
+    Problem,
+    ProblemData,
+    cached_jit,
+    check_residual_args,
+    fd_jacobian_fn,
+    map_batch,
+)
+from galileo_jax.inference.starts import diverse_best, latin_hypercube_starts, unit_box
 
 #: Name of the mesh axis the videos are sharded over.
 AXIS = "videos"

@@ -50,6 +50,7 @@ import numpy as np
 from flax import nnx
 
 from galileo_jax.errors import GalileoError
+from galileo_jax.inference.covariance import Z90
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
@@ -58,8 +59,6 @@ from galileo_jax.scene import Scene
 ARCHITECTURES = ("profile", "seed")
 #: Samples the seed's network reads (dissertation 4.3: a (4, 60) profile).
 SEED_SAMPLES = 60
-#: z = +-1.645 s bounds the central 90% of a Gaussian.
-Z90 = 1.6448536269514722
 #: Smallest predicted SD in z (keeps the negative log-likelihood finite).
 MIN_SD = 1e-3
 #: Speed (m/s) above which a simulated training profile counts as blown up: no object on a

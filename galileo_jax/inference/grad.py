@@ -50,7 +50,7 @@ the model misfits (tracking errors a few px long during motion blur, a missing e
 simulator's roughness at the impact) they are correlated over many frames, and the data hold
 fewer independent pieces of information than samples. Each coordinate's variance is therefore
 also estimated by the heteroscedasticity-
-and autocorrelation-consistent "sandwich" (J^T J)^-1 S (J^T J)^-1 (:func:`robust_covariance`:
+and autocorrelation-consistent "sandwich" (J^T J)^-1 S (J^T J)^-1 (:func:`~galileo_jax.inference.covariance.robust_covariance`:
 Newey & West 1987, Bartlett weights, the bandwidth from the residuals' lag-1 autocorrelation
 by Andrews 1991), and where it is larger the coordinate's interval is widened by the ratio of
 the two SDs (:attr:`GradResult.inflation`), keeping the Gauss-Newton correlations. Where the
@@ -71,7 +71,6 @@ flatter; the result says which interval each parameter got (:attr:`GradResult.pr
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Callable, NamedTuple
 
@@ -80,10 +79,9 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from galileo_jax.inference.covariance import Z90, gauss_newton_covariance, widened
 from galileo_jax.inference.problem import DEFAULT_FD_STEP
-
-#: Normal quantile for a central 90% interval.
-Z90 = 1.6448536269514722
+from galileo_jax.inference.starts import diverse_best, latin_hypercube_starts, start_point, unit_box
 
 
 class GradResult(NamedTuple):
@@ -111,7 +109,7 @@ class GradResult(NamedTuple):
         time_s: wall time of the solve (including compilation) in s.
         fixed: names of the parameters held at given values (not fitted).
         inflation: (d,) factor by which each coordinate's Gauss-Newton SD was widened to the
-            sandwich estimate's (:func:`robust_covariance`; 1 where it was not), or None.
+            sandwich estimate's (:func:`~galileo_jax.inference.covariance.robust_covariance`; 1 where it was not), or None.
         profile: the profile-likelihood check of the intervals (:func:`profile_check`, as
             :meth:`ProfileCheck.report` gives it), or None where it was not run. Where it
             disagreed with the Gauss-Newton interval, ``interval90`` holds the profile's end.
@@ -139,187 +137,6 @@ class GradResult(NamedTuple):
     fixed: tuple[str, ...] = ()
     inflation: np.ndarray | None = None
     profile: dict | None = None
-
-
-#: Starting points of the release-time correction are drawn from this fraction of its range,
-#: around 0 (the tracker's estimate is rarely more than a frame off; a wide draw only adds
-#: starts in the k1 / release-time valley, where LM is slow).
-RELEASE_START_FRACTION = 0.1
-
-
-def latin_hypercube_starts(problem, key: jax.Array, n: int, margin: float = 0.05,
-                           around: np.ndarray | None = None, spread: float | jax.Array = 0.25) -> jax.Array:
-    """n starting points theta (n, d), a Latin hypercube over the bounds (shrunk by ``margin``;
-    a release-time coordinate over :data:`RELEASE_START_FRACTION` of its range around 0).
-
-    With ``around`` (d,), every coordinate except the effect parameters is drawn within
-    +-``spread`` (scalar or (d,)) of its range around ``around`` (clipped to the bounds): a local screen for
-    refitting a model plus one effect near the model's estimate, where the effect's value is
-    unknown but the other parameters move only as far as the effect makes them."""
-    d = problem.dim
-    k_perm, k_u = jax.random.split(key)
-    perms = jnp.stack([jax.random.permutation(k, n) for k in jax.random.split(k_perm, d)], axis=1)
-    u = (perms + jax.random.uniform(k_u, (n, d))) / n
-    u = margin + (1.0 - 2.0 * margin) * u
-    lo, hi = problem.space._bounds()
-    release = jnp.asarray([k == "release" for k in problem.space.kinds])
-    u = jnp.where(release, 0.5 + RELEASE_START_FRACTION * (u - 0.5), u)
-    if around is None:
-        return lo + (hi - lo) * u
-    effect = jnp.asarray([k == "effect" for k in problem.space.kinds])
-    a_lo = jnp.maximum(lo, jnp.asarray(around) - spread * (hi - lo))
-    a_hi = jnp.minimum(hi, jnp.asarray(around) + spread * (hi - lo))
-    a_lo, a_hi = a_lo + margin * (a_hi - a_lo), a_hi - margin * (a_hi - a_lo)
-    return jnp.where(effect, lo + (hi - lo) * u, a_lo + (a_hi - a_lo) * (u - margin) / (1.0 - 2.0 * margin))
-
-
-#: Screened starts closer than this (Euclidean, in the prior box scaled to the unit cube) to a
-#: better one already chosen are passed over (:func:`diverse_best`).
-START_SEPARATION = 0.25
-
-
-def unit_box(theta, lo, hi, kinds=None):
-    """(..., d') points ``theta`` (..., d) scaled to the unit cube of the box ``lo``..``hi``,
-    release-time coordinates (``kinds`` "release") left out: where :func:`diverse_best`
-    measures distances."""
-    lo, hi = jnp.asarray(lo), jnp.asarray(hi)
-    u = (jnp.asarray(theta) - lo) / jnp.where(hi > lo, hi - lo, 1.0)
-    if kinds is not None:
-        u = u[..., np.array([k != "release" for k in kinds], bool)]
-    return u
-
-
-def diverse_best(u, loglik, n: int, separation: float = START_SEPARATION) -> jax.Array:
-    """Indices of ``n`` starting points among screened candidates: the best by log-likelihood
-    first, then each next-best candidate at least ``separation`` from every one already chosen;
-    candidates whose rollout failed (non-finite log-likelihood) are not spread to; where too
-    few are that far apart, the best of the rest fill up. Pure JAX (jittable, vmappable over
-    videos: :func:`~galileo_jax.inference.batch.solve_batch` uses it too).
-
-    The likelihood of a screen point is a poor guide to which basin LM will end in: on a
-    two-object video the best screened points often share one wrong mode (object 2 stopping
-    early, high k2 with a light object 1, ``benchmarks/results/fit_world.md``) and all of the
-    4 best starts end there; spreading the starts keeps one in each region.
-
-    Args:
-        u: (S, d') candidate points in the unit cube (:func:`unit_box`).
-        loglik: (S,) their log-likelihoods.
-        n: starts wanted (<= S).
-        separation: the least distance between chosen starts.
-
-    Returns:
-        (n,) int indices into the candidates, best first.
-    """
-    ll = jnp.asarray(loglik)
-    finite = jnp.isfinite(ll)
-    order = jnp.argsort(-jnp.where(finite, ll, -jnp.inf), stable=True)
-    u_s, fin_s = jnp.asarray(u)[order], finite[order]
-
-    def pick(t, carry):
-        chosen, picks, dist = carry
-        spread = fin_s & ~chosen & (dist >= separation)
-        j = jnp.where(spread.any(), jnp.argmax(spread), jnp.argmax(~chosen))
-        dist = jnp.minimum(dist, jnp.linalg.norm(u_s - u_s[j], axis=-1))
-        return chosen.at[j].set(True), picks.at[t].set(j), dist
-
-    init = (jnp.zeros(len(ll), bool), jnp.zeros(n, int), jnp.full(len(ll), jnp.inf))
-    _, picks, _ = jax.lax.fori_loop(0, n, pick, init)
-    return order[picks]
-
-
-def gauss_newton_covariance(jac: np.ndarray, ridge: float = 1e-9) -> np.ndarray:
-    """(J^T J)^-1 for a (n, d) Jacobian of standardised residuals (pseudo-inverse if singular).
-
-    A coordinate whose Jacobian column is not finite (a rollout at its difference step blew
-    up, e.g. a stiff contact) gets an infinite variance and no covariance with the others: its
-    interval is the prior range, not a made-up number."""
-    jac = np.asarray(jac, np.float64)
-    d = jac.shape[1]
-    good = np.all(np.isfinite(jac), axis=0)
-    cov = np.zeros((d, d))
-    if good.any():
-        j = jac[:, good]
-        jtj = j.T @ j
-        jtj = jtj + ridge * np.trace(jtj) / max(jtj.shape[0], 1) * np.eye(jtj.shape[0])
-        cov[np.ix_(good, good)] = np.linalg.pinv(jtj, hermitian=True)
-    bad = np.flatnonzero(~good)
-    cov[bad, bad] = np.inf
-    return cov
-
-
-def robust_covariance(jac: np.ndarray, resid: np.ndarray, series, cov_gn: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """The Gauss-Newton covariance widened, per coordinate, to the sandwich estimate's SD where
-    that is larger (module docstring, "Uncertainty").
-
-    The sandwich (Huber 1967; White 1980) is A S A with A = ``cov_gn`` = (J^T J)^-1 and S the
-    Newey-West (1987) long-run covariance of the score contributions g_k = J_k r_k summed over
-    each time series (a trace of a video): S = sum_k g_k g_k^T + sum_{l=1..L} (1 - l/(L+1))
-    sum_k (g_k g_{k+l}^T + g_{k+l} g_k^T). The bandwidth L is Andrews' (1991, eq. 6.4, Bartlett
-    kernel) AR(1) plug-in, 1.1447 (alpha n)^(1/3) with alpha = 4 rho^2 / ((1 - rho)^2 (1 + rho)^2),
-    rho the residuals' pooled lag-1 autocorrelation (clipped to +-0.97) and n the used samples
-    per series. A coordinate's variance is never taken below White's (1980) heteroscedasticity-
-    consistent one (S without the lags): velocities differenced from tracked positions have a
-    lag-1 correlation of -1/2, which the iid likelihood already leaves out and which would
-    otherwise cancel the widening where the residuals are larger than the noise claimed
-    (measured: ``tests/test_coverage_check.py``, half the noise claimed: 90% coverage 0.6 with
-    the lags' cancellation, 0.5 without any widening).
-
-    Args:
-        jac: (R, d) Jacobian of the standardised residuals.
-        resid: (R,) standardised residuals at the estimate (0 at unused samples).
-        series: list of (T, M) shapes: the residual vector is their blocks one after the other,
-            each T series of M samples (trace-major, :meth:`~galileo_jax.likelihood.Likelihood.residuals`).
-        cov_gn: (d, d) :func:`gauss_newton_covariance` of ``jac`` (infinite for coordinates with a
-            non-finite Jacobian column, zero for held ones).
-
-    Returns:
-        ``(cov, inflation)``: (d, d) covariance D cov_gn D with D = diag(inflation), and (d,)
-        inflation = max(1, sd_sandwich / sd_gauss_newton) (1 where either is not finite or zero).
-
-    Raises:
-        ValueError: ``series`` does not add up to R.
-    """
-    jac, resid = np.asarray(jac, np.float64), np.asarray(resid, np.float64)
-    R, d = jac.shape
-    if sum(t * m for t, m in series) != R or resid.shape != (R,):
-        raise ValueError(f"series {list(series)} do not make up {R} residuals (got {resid.shape})")
-    var_gn = np.diag(cov_gn)
-    good = np.isfinite(var_gn) & (var_gn > 0) & np.all(np.isfinite(jac), axis=0)
-    inflation = np.ones(d)
-    if not good.any() or not np.all(np.isfinite(resid)):
-        return cov_gn, inflation
-    blocks, at = [], 0
-    for t, m in series:
-        blocks.append((resid[at:at + t * m].reshape(t, m), jac[at:at + t * m][:, good].reshape(t, m, -1)))
-        at += t * m
-    lag0 = sum(float(np.sum(r * r)) for r, _ in blocks)
-    lag1 = sum(float(np.sum(r[:, 1:] * r[:, :-1])) for r, _ in blocks)
-    rho = float(np.clip(lag1 / lag0, -0.97, 0.97)) if lag0 > 0 else 0.0
-    alpha = 4 * rho ** 2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
-    n = max(np.count_nonzero(resid) / max(sum(t for t, _ in series), 1), 2.0)  # used samples per series
-    L = int(min(max(math.ceil(1.1447 * (alpha * n) ** (1 / 3)), 1), n - 1))
-    S0 = np.zeros((int(good.sum()),) * 2)  # White's: the lag-0 term
-    lags = np.zeros_like(S0)  # the weighted lag terms of Newey-West
-    for r, J in blocks:
-        g = J * r[..., None]  # (T, M, d') score contributions
-        S0 += np.einsum("tki,tkj->ij", g, g)
-        for lag in range(1, min(L, g.shape[1] - 1) + 1):
-            c = np.einsum("tki,tkj->ij", g[:, :-lag], g[:, lag:])
-            lags += (1 - lag / (L + 1)) * (c + c.T)
-    A = cov_gn[np.ix_(good, good)]
-    var_hac = np.maximum(np.diag(A @ (S0 + lags) @ A), np.diag(A @ S0 @ A))
-    inflation[good] = np.sqrt(np.maximum(var_hac / var_gn[good], 1.0))
-    D = np.where(good, inflation, 1.0)
-    return np.where(np.isfinite(cov_gn), cov_gn * D[:, None] * D[None, :], cov_gn), inflation
-
-
-def residual_series(likelihood) -> list[tuple[int, int]] | None:
-    """The (T, M) blocks of a likelihood's residual vector (one per video of a joint fit), or
-    None where it has none (:func:`robust_covariance`)."""
-    parts = getattr(likelihood, "likelihoods", None) or (likelihood,)
-    shapes = [tuple(getattr(lik, "obs").shape) for lik in parts if hasattr(lik, "obs")]
-    return shapes if len(shapes) == len(parts) and all(len(s) == 2 for s in shapes) else None
 
 
 #: Most Levenberg-Marquardt starts vmapped into one solve; more run as several calls of the same
@@ -401,27 +218,6 @@ def _lm_solver(res_fn, rtol: float, atol: float, max_steps: int):
     return jax.vmap(solve_one, in_axes=(0, None))
 
 
-#: Fraction of a parameter's range kept between an ``init`` start and the bounds (z = +-4.6).
-INIT_MARGIN = 0.01
-
-
-def start_point(space, theta, what: str = "init") -> np.ndarray:
-    """A user's start ``theta`` (d,) checked against ``space`` and moved :data:`INIT_MARGIN` of
-    the range inward from the bounds (the logistic transform is flat there, so a local
-    optimiser could not leave a start on a bound).
-
-    Raises:
-        ValueError: wrong shape, or values outside the bounds (the message names ``what``).
-    """
-    theta = np.asarray(theta, np.float64)
-    if theta.shape != (space.dim,):
-        raise ValueError(f"{what} must have shape ({space.dim},) for parameters {list(space.names)}, got {theta.shape}")
-    lo, hi = np.asarray(space.lower, np.float64), np.asarray(space.upper, np.float64)
-    if not np.all((theta >= lo) & (theta <= hi)):
-        raise ValueError(f"{what} {theta.tolist()} is outside the bounds {list(zip(space.lower, space.upper))}")
-    return np.clip(theta, lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))
-
-
 def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
              init: np.ndarray | None = None, fixed: dict[str, float] | None = None,
              jacobian: str = "fd", fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
@@ -440,7 +236,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
         n_screen: number of screened candidate points (>= n_starts).
         init: optional extra start theta (d,) (e.g. from a CNN or an earlier fit), tried in
             addition (the entries of held parameters are ignored). Entries on or within
-            :data:`INIT_MARGIN` of the range of a bound are moved to that distance: the
+            :data:`~galileo_jax.inference.starts.INIT_MARGIN` of the range of a bound are moved to that distance: the
             logistic transform is flat at the bounds, so LM could not leave a start there.
         fixed: optional {name: value}: parameters held at these values, not fitted
             (:class:`~galileo_jax.inference.fixed.FixedProblem`); the result is still in the
@@ -453,7 +249,7 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
             (:func:`polish`; 0 rounds switch it off).
         local_screen: with ``init``, screen the starts within +-``local_screen`` (a fraction,
             or (d,) fractions, one per coordinate) of each range around ``init`` instead of
-            over the whole prior box, effect parameters excepted (:func:`latin_hypercube_starts`).
+            over the whole prior box, effect parameters excepted (:func:`~galileo_jax.inference.starts.latin_hypercube_starts`).
         profile: check each physical parameter's interval against its profile likelihood
             (:func:`~galileo_jax.inference.profile.profile_check`); where they disagree the
             profile's 90% end replaces the Gauss-Newton one (:attr:`GradResult.profile` says
@@ -533,6 +329,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
 #: Levenberg-Marquardt steps at most per held fit of the profile check (each starts at the
 #: Gauss-Newton conditional mean, near its optimum).
 PROFILE_MAX_STEPS = 20
+
+
 #: A held fit of the profile check that ends this far (nats) above the fit's own maximum of the
 #: log-likelihood shows that the fit stopped short: :func:`with_profile` fits again from that
 #: point (a deviance of 1, a shift of about one standard deviation: enough to move an interval).
@@ -622,19 +420,10 @@ def refit_from(res: GradResult, problem, z_start: np.ndarray, *, fd_step: float 
 def _linearised(problem, z, fd_step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """At ``z`` ((d,) in z): the standardised residuals (R,), their finite-difference Jacobian
     (R, d) (step ``fd_step``; one jitted program per problem structure) and its
-    :func:`gauss_newton_covariance` (d, d)."""
+    :func:`~galileo_jax.inference.covariance.gauss_newton_covariance` (d, d)."""
     jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(problem.residual_fn("fd", fd_step)))
     r, jac = (np.asarray(a, np.float64) for a in jac_fn(jnp.asarray(z), problem.data))
     return r, jac, gauss_newton_covariance(jac)
-
-
-def widened(jac: np.ndarray, resid: np.ndarray, likelihood, cov_gn: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """:func:`robust_covariance` of a fit whose likelihood's residual layout is known
-    (:func:`residual_series`); else ``(cov_gn, None)``."""
-    series = residual_series(likelihood)
-    if series is None:
-        return cov_gn, None
-    return robust_covariance(jac, resid, series, cov_gn)
 
 
 def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, theta0, z_end, cost, steps, ok, codes,
@@ -737,36 +526,6 @@ def polish_many(loglik, key: jax.Array, z: np.ndarray, cost: np.ndarray, cov_z: 
         best_z = np.where(better[:, None], pts[np.arange(b), i], best_z)
         best_cost = np.where(better, c_min, best_cost)
     return best_z, best_cost
-
-
-def gauss_newton_draws(res: GradResult, space, key: jax.Array, n: int) -> np.ndarray:
-    """(n, d) draws of theta from the Gauss-Newton normal approximation N(z_hat, cov_z) of a fit
-    (the held coordinates of ``res.fixed`` stay at their values). Where the profile check
-    (:attr:`GradResult.profile`) widened a side of a coordinate's interval, that side of its
-    draws is stretched about z_hat (a split normal in z) so their 5% and 95% quantiles are the
-    reported interval's ends."""
-    from galileo_jax.inference.profile import MAX_Z_DISTANCE
-
-    free = [j for j, name in enumerate(res.names) if name not in res.fixed]
-    zf = jax.random.multivariate_normal(key, jnp.asarray(res.z[free]), jnp.asarray(res.cov_z[np.ix_(free, free)]), (n,))
-    z = np.array(jnp.asarray(res.z)[None].repeat(n, 0).at[:, free].set(zf), np.float64)
-    for name, entry in ((res.profile or {}).get("parameters") or {}).items():
-        if entry["method"] != "profile":
-            continue
-        j = res.names.index(name)
-        ends = np.full((2, len(res.names)), np.asarray(res.theta, np.float64))
-        ends[:, j] = entry["interval90_profile"]
-        z_ends = np.asarray(space.to_unconstrained(jnp.asarray(ends)), np.float64)[:, j]
-        # an end at a bound: as far as the check looked
-        z_ends = np.clip(z_ends, res.z[j] - MAX_Z_DISTANCE, res.z[j] + MAX_Z_DISTANCE)
-        z_gn = res.z[j] + Z90 * np.sqrt(max(float(res.cov_z[j, j]), 0.0)) * np.array([-1.0, 1.0])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            stretch = np.nan_to_num((z_ends - res.z[j]) / (z_gn - res.z[j]), nan=1.0, posinf=1.0)
-        z[:, j] = res.z[j] + (z[:, j] - res.z[j]) * np.where(z[:, j] < res.z[j], stretch[0], stretch[1])
-    theta_free = np.asarray(space.from_unconstrained(jnp.asarray(z)))
-    out = np.repeat(np.asarray(res.theta, np.float64)[None], n, axis=0)
-    out[:, free] = theta_free[:, free]
-    return out
 
 
 def _expand(res: GradResult, sub) -> GradResult:

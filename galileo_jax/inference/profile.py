@@ -14,7 +14,7 @@ Gauss-Newton interval, all ends in ONE batched Levenberg-Marquardt solve with th
 held (:func:`held_lm_solver`; each start is the Gauss-Newton conditional mean of the other
 coordinates there). Its signed root deviance there, sqrt(2 (l_hat - l_p)) / inflation (the
 inflation being the sandwich widening that the interval already carries,
-:func:`~galileo_jax.inference.grad.robust_covariance`), is 1.645 for an exactly quadratic
+:func:`~galileo_jax.inference.covariance.robust_covariance`), is 1.645 for an exactly quadratic
 log-likelihood. Where it is below 1.645 / :data:`PROFILE_TOLERANCE` the profile is flatter than
 the quadratic and the interval too narrow on that side: its end is searched outwards by the
 secant method on the root deviance (a few more batched solves) and the profile's end replaces
@@ -47,7 +47,9 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from galileo_jax.inference.grad import Z90, lm_no_worse
+from galileo_jax.inference.covariance import Z90
+
+from galileo_jax.inference.grad import lm_no_worse
 
 #: A side of an interval is searched where the profile's root deviance at its Gauss-Newton end
 #: is below 1.645 / this factor (the interval is then more than ~1.5x too narrow there); a

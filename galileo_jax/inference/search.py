@@ -89,7 +89,7 @@ def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int 
     import cma  # pycma: imported here, only diagnose's refits need it
 
     from galileo_jax.inference.fixed import FixedProblem
-    from galileo_jax.inference.grad import start_point
+    from galileo_jax.inference.starts import start_point
 
     if not sigma > 0 or popsize < 4 or generations < 1:
         raise ValueError(f"need sigma > 0, popsize >= 4, generations >= 1; got {sigma}, {popsize}, {generations}")

@@ -377,7 +377,7 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     ESS are None. ``diagnostics``: cost, loglik, iterations, converged, result, jacobian, time_s,
     ``competing_optima`` (:func:`competing_optima`) and ``interval_widening``: {name: factor}
     by which each fitted parameter's Gauss-Newton SD (in z) was widened to the sandwich
-    estimate's (:func:`~galileo_jax.inference.grad.robust_covariance`; 1.0: not widened). Where
+    estimate's (:func:`~galileo_jax.inference.covariance.robust_covariance`; 1.0: not widened). Where
     the intervals were checked against the profile likelihood (:attr:`GradResult.profile`),
     ``profile_check`` holds the check and each checked parameter its ``interval_method``
     ("profile likelihood" where the profile's ends were reported, else "gauss-newton").
