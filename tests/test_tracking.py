@@ -31,7 +31,9 @@ import pytest
 from galileo_jax.errors import GalileoError
 from galileo_jax.observe import observe
 from galileo_jax.observe.klt import _Params, _klt
-from galileo_jax.observe.matte import ColourBackground, Look, Palette, footprint, matte, measure
+from galileo_jax.observe.colour import ColourBackground, Look, Palette, matte
+from galileo_jax.observe.measure import measure
+from galileo_jax.observe.tracks import footprint
 from galileo_jax.observe.tracks import frame_median
 from galileo_jax.scene import load_scene, scene_from_dict
 

@@ -4,7 +4,9 @@
 * :mod:`.tracks`: what trackers return (:class:`Tracks`), object footprints
   (:class:`Window`, :func:`object_windows`) and the grey :func:`background_model`.
 * :mod:`.klt`: :func:`track_objects`, KLT tracks of textured objects.
-* :mod:`.matte`: :func:`track_matte`, objects without texture by their colour matte.
+* :mod:`.matte`: :func:`track_matte`, objects without texture by their colour matte: its
+  colour model in :mod:`.colour` (background, colours, the matte), one frame's centre in
+  :mod:`.measure`, the rough pass that finds the object first in :mod:`.rough`.
 * :mod:`.outline`: :func:`track_circles`, rolling round objects by their outline.
 * :mod:`.track`: :func:`track_scene`, each object by the method that suits it.
 * :mod:`.find`: :func:`find_objects` / :func:`locate_objects`, start pixels from motion and

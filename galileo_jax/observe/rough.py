@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from galileo_jax.errors import TrackingError
+from galileo_jax.observe.colour import CROSS
 from galileo_jax.observe.tracks import (BACKGROUND_FRAMES, BACKGROUND_MIN, crop_box, footprint, footprints_along,
                                         frame_median, spread_indices, visible_fraction, weighted_centroid)
 
@@ -52,7 +53,6 @@ SHUTTER_VOTES = 3
 COMPOSITE_AREA = 576
 #: Turn (rad) of the template tried either way when the rough pass searches wider.
 WIDE_TURN = math.radians(15.0)
-_CROSS = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 
 
 class _Template(NamedTuple):
@@ -203,7 +203,7 @@ def _recentre(frame: np.ndarray, scenery: np.ndarray, centre, half, angle: float
         return None
     thr = max(BACKGROUND_MIN + 4, 4.0 * 1.4826 * float(np.nanmedian(d)))
     fg = ((d > thr) & near).astype(np.uint8)
-    fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, _CROSS)
+    fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, CROSS)
     area = float(fg.sum())
     if not 0.6 * 4 * half[0] * half[1] <= area <= 1.6 * 4 * (half[0] + 0.5 * margin) * (half[1] + 0.5 * margin):
         return None
