@@ -10,7 +10,7 @@ coverage of the 90% intervals. Two observation settings:
   whole windows (what a tracked video gives);
 * ``clean``: no noise (the seed tested on clean simulations).
 
-Each on two test priors: the model's training prior, and the seed's own (:func:`galileo_jax.inference.cnn.seed_prior`:
+Each on two test priors: the model's training prior, and the seed's own (:func:`galileo_jax.inference.cnn_training.seed_prior`:
 frictions on (0, 0.3), masses on (0, 1)), the like-for-like comparison with its table.
 
 It also times the training step (examples per second on this machine) and reads each model's
@@ -49,23 +49,27 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
     import jax.numpy as jnp
 
     from galileo_jax.inference import cnn
+
+    from galileo_jax.inference import cnn_files
+
+    from galileo_jax.inference import cnn_training
     from galileo_jax.jaxcache import enable_compilation_cache
     from galileo_jax.train import TrainConfig, draw_prior, setup
 
     enable_compilation_cache()
-    model = cnn.load_model(model_dir)
+    model = cnn_files.load_model(model_dir)
     cfg = TrainConfig.model_validate(model.info["config"])
     s, _ = setup(cfg)
     spec = model.spec
-    settings = {"tracked": cnn.NoiseModel(tuple(cfg.noise.position_sd), spec.n_samples, 0),
-                "clean": cnn.NoiseModel((1e-12, 1e-12), spec.n_samples, 0)}
+    settings = {"tracked": cnn_training.NoiseModel(tuple(cfg.noise.position_sd), spec.n_samples, 0),
+                "clean": cnn_training.NoiseModel((1e-12, 1e-12), spec.n_samples, 0)}
     chunk = 200
 
     @functools.partial(jax.jit, static_argnums=1)
     def sims(key, seed_draws: bool):
         k_theta, k_sim = jax.random.split(key)
-        theta = cnn.seed_prior(s.engine.space, k_theta, chunk) if seed_draws else draw_prior(s, k_theta, chunk)
-        out = {name: cnn.simulate_examples(s.engine, spec, noise, theta, jax.random.fold_in(k_sim, j))
+        theta = cnn_training.seed_prior(s.engine.space, k_theta, chunk) if seed_draws else draw_prior(s, k_theta, chunk)
+        out = {name: cnn_training.simulate_examples(s.engine, spec, noise, theta, jax.random.fold_in(k_sim, j))
                for j, (name, noise) in enumerate(settings.items())}
         # How far object 2 slides in the window (m): the clean profile's x velocity summed over time.
         travel = jnp.abs(jnp.sum(out["clean"][:, :, 2], axis=1)) / spec.fps

@@ -71,6 +71,7 @@ def run_methods(video: Path, with_mh: bool) -> dict:
     from galileo_jax.config import FitConfig, resolve_engine
     from galileo_jax.inference import Problem, fit_grad, run_mh, summarize_mh
     from galileo_jax.inference import cnn
+    from galileo_jax.inference import cnn_files
     from galileo_jax.observe import observe
     from galileo_jax.pipeline import grad_start_from_cnn, mh_start_from_cnn
     from galileo_jax.scene import load_scene
@@ -81,7 +82,7 @@ def run_methods(video: Path, with_mh: bool) -> dict:
     obs = observe(video, scene, progress=False)
     engine = resolve_engine(cfg)  # what fit runs on: C MuJoCo on a CPU
     problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, engine=engine)
-    model = cnn.find_model(scene, obs.fps)
+    model = cnn_files.find_model(scene, obs.fps)
     out = {"video": video.name, "truth": {n: truth[n] for n in NAMES}, "engine": engine, "runs": {}}
 
     def errors(theta):

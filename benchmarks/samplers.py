@@ -212,6 +212,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
 
     from galileo_jax.inference import fit_grad, run_mh, run_seed_mh, summarize_mh
     from galileo_jax.inference import cnn
+    from galileo_jax.inference import cnn_files
     from galileo_jax.observe import observe
     from galileo_jax.pipeline import grad_start_from_cnn
     from galileo_jax.scene import load_scene
@@ -285,7 +286,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
     if want("cnn", "grad --init cnn"):
         if scene.name not in models:
             try:
-                models[scene.name] = cnn.find_model(scene, obs.fps, cfg.cnn.model)
+                models[scene.name] = cnn_files.find_model(scene, obs.fps, cfg.cnn.model)
             except cnn.CNNError as err:
                 models[scene.name] = err
         model = models[scene.name]

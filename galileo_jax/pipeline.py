@@ -204,9 +204,10 @@ def cnn_estimate(problem: Problem, cfg: FitConfig, key, model=None):
             how to train one).
     """
     from galileo_jax.inference import cnn
+    from galileo_jax.inference import cnn_files
 
     if model is None:
-        model = cnn.find_model(problem.scene, problem.observation.fps, cfg.cnn.model)
+        model = cnn_files.find_model(problem.scene, problem.observation.fps, cfg.cnn.model)
     return cnn.estimate(model, problem.observation, problem.space, key)
 
 
@@ -285,7 +286,7 @@ def track_video(video: Path, scene: Scene, cfg: FitConfig, *, fps: float | None 
     clip = read_video(video, fps_override=fps or scene.video.fps)
     cnn_model = None
     if method == "cnn" or init == "cnn":  # no trained model for this scene: say so before tracking
-        from galileo_jax.inference.cnn import find_model
+        from galileo_jax.inference.cnn_files import find_model
 
         cnn_model = find_model(scene, clip.fps, cfg.cnn.model)
     obs = observe(clip, scene, progress=progress)

@@ -2,11 +2,11 @@
 
 Training data is never a file on disk. Each step is ONE jitted function
 (:func:`make_train_step`): draw ``rollouts`` parameter vectors from the training prior
-(:func:`~galileo_jax.inference.cnn.training_prior`), run them as one batch of rollouts (vmapped
+(:func:`~galileo_jax.inference.cnn_training.training_prior`), run them as one batch of rollouts (vmapped
 MJX, or C MuJoCo's batched rollout through a callback: ``engine``, auto picks C MuJoCo on a CPU,
 12.7x the simulated examples per second of MJX on 2 cores, ``benchmarks/results/cnn_accuracy.md``,
 and MJX on a GPU),
-make ``views`` noisy, cut copies of each (:func:`~galileo_jax.inference.cnn.simulate_examples`:
+make ``views`` noisy, cut copies of each (:func:`~galileo_jax.inference.cnn_training.simulate_examples`:
 the observation noise model of :mod:`galileo_jax.likelihood`), and take one optax step
 (AdamW, cosine-decayed learning rate, gradient clipping) on the batch of rollouts x views.
 
@@ -15,13 +15,12 @@ state, step, PRNG key) goes to an Orbax ``CheckpointManager`` in ``<out>.train/c
 (the last 2 kept); a rerun of the same command continues from the latest one. Metrics go to
 ``<out>.train/metrics.jsonl`` (one JSON line per log: step, loss, validation loss and mean
 absolute errors on a fixed validation set, examples per second). The trained model
-(:func:`~galileo_jax.inference.cnn.save_model`: ``model.json`` + Orbax ``weights/``) is written
+(:func:`~galileo_jax.inference.cnn_files.save_model`: ``model.json`` + Orbax ``weights/``) is written
 atomically to ``<out>`` at the end, where ``fit --method cnn`` finds it.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -48,7 +47,7 @@ class _Strict(BaseModel):
 
 
 class NoiseConfig(_Strict):
-    """Observation noise and cuts of the training profiles (see ``cnn.NoiseModel``)."""
+    """Observation noise and cuts of the training profiles (see ``cnn_training.NoiseModel``)."""
 
     position_sd: tuple[float, float] = (5e-5, 3e-3)
     min_samples: int = Field(24, ge=4)
@@ -136,6 +135,7 @@ def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
 
     from galileo_jax.config import pick_engine
     from galileo_jax.inference import cnn
+    from galileo_jax.inference import cnn_training
     from galileo_jax.inference.problem import get_engine
     from galileo_jax.scene import load_scene
 
@@ -147,7 +147,7 @@ def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
     try:
         spec = cnn.CNNSpec.for_scene(scene, cfg.fps, n_samples=cfg.n_samples, release_offset=cfg.release_offset,
                                      architecture=cfg.architecture, width=cfg.width, hidden=cfg.hidden)
-        noise = cnn.NoiseModel(tuple(cfg.noise.position_sd), cfg.noise.min_samples, cfg.noise.prefix)
+        noise = cnn_training.NoiseModel(tuple(cfg.noise.position_sd), cfg.noise.min_samples, cfg.noise.prefix)
         if not 0 < noise.position_sd[0] <= noise.position_sd[1]:
             raise ValueError(f"noise.position_sd must be [low, high] with 0 < low <= high, got {noise.position_sd}")
         if noise.min_samples > spec.n_samples:
@@ -167,13 +167,13 @@ def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
 
 def draw_prior(s: Setup, key, n: int):
     """n training draws (n, d) of theta from the config's ``prior`` (pure): ``scene``: the scene's
-    prior with object 1 sliding (:func:`~galileo_jax.inference.cnn.training_prior`); ``seed``: the
-    seed's (:func:`~galileo_jax.inference.cnn.seed_prior`)."""
-    from galileo_jax.inference import cnn
+    prior with object 1 sliding (:func:`~galileo_jax.inference.cnn_training.training_prior`); ``seed``: the
+    seed's (:func:`~galileo_jax.inference.cnn_training.seed_prior`)."""
+    from galileo_jax.inference import cnn_training
 
     if s.cfg.prior == "seed":
-        return cnn.seed_prior(s.engine.space, key, n)
-    return cnn.training_prior(s.engine.space, s.scene, key, n, s.cfg.slide_margin)
+        return cnn_training.seed_prior(s.engine.space, key, n)
+    return cnn_training.training_prior(s.engine.space, s.scene, key, n, s.cfg.slide_margin)
 
 
 def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
@@ -183,14 +183,14 @@ def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
     import jax
     import jax.numpy as jnp
 
-    from galileo_jax.inference import cnn
+    from galileo_jax.inference import cnn_training
 
     views = s.cfg.views if views is None else views
 
     def batch(key, n):
         k_theta, k_sim = jax.random.split(key)
         theta = draw_prior(s, k_theta, n)
-        x = cnn.simulate_examples(s.engine, s.spec, s.noise, theta, k_sim, views)
+        x = cnn_training.simulate_examples(s.engine, s.spec, s.noise, theta, k_sim, views)
         return x, jnp.tile(theta, (views, 1)).astype(jnp.float32)
 
     return batch
@@ -287,8 +287,8 @@ def train(cfg: TrainConfig, *, out: Path, fresh: bool = False, progress: bool = 
     import numpy as np
     import orbax.checkpoint as ocp
     from tqdm import tqdm
+    from galileo_jax.inference import cnn_files
 
-    from galileo_jax.inference import cnn
     from galileo_jax.jaxcache import enable_compilation_cache
 
     enable_compilation_cache()
@@ -351,7 +351,7 @@ def train(cfg: TrainConfig, *, out: Path, fresh: bool = False, progress: bool = 
             "train_s_total": float(rows[-1]["elapsed_s"]) if rows else None,
             "validation": val or (rows[-1] if rows else {}),
             "config": json.loads(cfg.model_dump_json()), "machine": _machine()}
-    cnn.save_model(out, s.spec, state.params, info)
+    cnn_files.save_model(out, s.spec, state.params, info)
     return info
 
 

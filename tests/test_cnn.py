@@ -18,6 +18,8 @@ from flax import nnx
 
 from galileo_jax.effects import resolve_effects
 from galileo_jax.inference import cnn
+from galileo_jax.inference import cnn_files
+from galileo_jax.inference import cnn_training
 from galileo_jax.inference.problem import simulated_observation
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
@@ -109,13 +111,13 @@ def test_training_step_is_one_jitted_function_and_training_resumes(tmp_path):
     assert info["trained_steps"] == 3
     rows = [json.loads(r) for r in (tmp_path / "model.train" / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in rows] == [1, 2, 3]
-    model = cnn.load_model(out)
+    model = cnn_files.load_model(out)
     assert model.spec == s.spec and model.info["trained_steps"] == 3
     xs = jnp.asarray(np.random.default_rng(0).normal(size=(2, 32, 5)), jnp.float32)
     a = cnn.predict(model.spec, model.graphdef, model.params, xs)
     assert np.all(np.isfinite(np.asarray(a.theta)))
     with pytest.raises(cnn.CNNError, match="model.json"):
-        cnn.load_model(tmp_path)
+        cnn_files.load_model(tmp_path)
 
 
 def test_training_on_the_c_engine_is_one_jitted_step_with_the_beta_nll():
@@ -151,7 +153,7 @@ def test_shipped_model_against_ground_truth_on_simulations():
     """The shipped 20 degree model on noisy simulated observations of random parameters
     (clean of the tracker): k1 close, phi and (where object 2 slides) k2 close, the truth inside
     most 90% intervals."""
-    model = cnn.find_model(SCENE, 30.0)
+    model = cnn_files.find_model(SCENE, 30.0)
     assert model.spec.architecture == "profile"
     space = ParamSpace.from_scene(SCENE)
     rng = np.random.default_rng(11)
@@ -176,7 +178,7 @@ def test_shipped_model_against_ground_truth_on_simulations():
     assert np.sum(errors[:, 1] < 0.06) >= 3
     assert np.mean(inside) >= 0.6
     with pytest.raises(cnn.CNNError, match="train one"):
-        cnn.find_model(load_scene("scenes/ramp_10.yaml"), 30.0)
+        cnn_files.find_model(load_scene("scenes/ramp_10.yaml"), 30.0)
     with pytest.raises(cnn.CNNError, match="base model"):
         cnn.estimate(model, obs, ParamSpace.from_scene(SCENE, resolve_effects("linear_drag")), jax.random.PRNGKey(0))
 
@@ -188,7 +190,7 @@ def test_seed_prior_draws_as_the_seed_drew():
     from galileo_jax.train import draw_prior
 
     space = ParamSpace.from_scene(SCENE)
-    theta = np.asarray(cnn.seed_prior(space, jax.random.PRNGKey(0), 20000))
+    theta = np.asarray(cnn_training.seed_prior(space, jax.random.PRNGKey(0), 20000))
     k1, k2, phi = (theta[:, space.index(n)] for n in ("k1", "k2", "phi"))
     assert 0 <= k1.min() and k1.max() <= 0.3 and 0 <= k2.min() and k2.max() <= 0.3
     assert abs(np.mean(k2) - 0.15) < 0.005
@@ -209,19 +211,19 @@ def test_shipped_model_is_package_data_and_other_folders_are_searched(tmp_path, 
 
     import galileo_jax
 
-    assert cnn.MODELS_DIR.parent == __import__("pathlib").Path(galileo_jax.__file__).parent
+    assert cnn_files.MODELS_DIR.parent == __import__("pathlib").Path(galileo_jax.__file__).parent
     scene = load_scene("scenes/ramp_20.yaml")
-    assert cnn.find_model(scene, 30.0).path.parent == cnn.MODELS_DIR
+    assert cnn_files.find_model(scene, 30.0).path.parent == cnn_files.MODELS_DIR
     elsewhere = tmp_path / "mine"
-    shutil.copytree(cnn.MODELS_DIR / "ramp_20_cnn", elsewhere / "ramp_20_cnn")
+    shutil.copytree(cnn_files.MODELS_DIR / "ramp_20_cnn", elsewhere / "ramp_20_cnn")
     empty = tmp_path / "none"
     empty.mkdir()
-    monkeypatch.setattr(cnn, "MODELS_DIR", empty)
+    monkeypatch.setattr(cnn_files, "MODELS_DIR", empty)
     monkeypatch.chdir(tmp_path)
     with pytest.raises(cnn.CNNError, match="no trained CNN matches scene.*train one"):
-        cnn.find_model(scene, 30.0)
-    monkeypatch.setenv(cnn.MODELS_ENV, str(elsewhere))
-    assert cnn.find_model(scene, 30.0).path == elsewhere / "ramp_20_cnn"
-    monkeypatch.delenv(cnn.MODELS_ENV)
+        cnn_files.find_model(scene, 30.0)
+    monkeypatch.setenv(cnn_files.MODELS_ENV, str(elsewhere))
+    assert cnn_files.find_model(scene, 30.0).path == elsewhere / "ramp_20_cnn"
+    monkeypatch.delenv(cnn_files.MODELS_ENV)
     shutil.copytree(elsewhere, tmp_path / "models")
-    assert cnn.find_model(scene, 30.0).path.resolve() == (tmp_path / "models" / "ramp_20_cnn").resolve()
+    assert cnn_files.find_model(scene, 30.0).path.resolve() == (tmp_path / "models" / "ramp_20_cnn").resolve()

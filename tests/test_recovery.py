@@ -95,12 +95,13 @@ def test_cnn_and_grad_started_from_it_on_rendered_video(rendered):
     0.03 on at least 4 of 5; grad started from it (``fit --init cnn``: one start plus a screen
     as wide as the CNN's intervals) then gets k1, k2, phi within 0.02, 0.05, 0.1 on video 0."""
     from galileo_jax.inference import cnn
+    from galileo_jax.inference import cnn_files
     from galileo_jax.pipeline import grad_start_from_cnn
 
     errors = []
     for i, (scene, obs, truth) in enumerate(rendered):
         problem = _problem(scene, obs)
-        model = cnn.find_model(scene, obs.fps)
+        model = cnn_files.find_model(scene, obs.fps)
         est = cnn.estimate(model, obs, problem.space, jax.random.PRNGKey(i))
         d = dict(zip(est.names, est.theta))
         errors.append([abs(d[n] - truth[n]) for n in ("k1", "k2", "phi")])

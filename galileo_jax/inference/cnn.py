@@ -13,7 +13,7 @@ that starts ``release_offset`` s before the tracker's release estimate, plus a m
 network reads videos of any length: shorter ones are padded and masked, longer ones cut at
 the window's end (3.2 s after the window's start by default; the seed's 60-frame window
 missed the collision of slow slides). Training draws the valid length and a masked prefix at
-random (:func:`simulate_examples`).
+random (:func:`~galileo_jax.inference.cnn_training.simulate_examples`).
 
 Outputs. Two networks, both ``f(x (B, L, T + 1)) -> (B, 2, d)``:
 
@@ -37,9 +37,6 @@ state with :func:`flax.nnx.split`), except loading and the input window, which a
 from __future__ import annotations
 
 import hashlib
-import json
-import math
-import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -55,22 +52,24 @@ from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
 
+
 #: Architectures by name (``CNNSpec.architecture``).
 ARCHITECTURES = ("profile", "seed")
+
+
 #: Samples the seed's network reads (dissertation 4.3: a (4, 60) profile).
 SEED_SAMPLES = 60
+
+
 #: Smallest predicted SD in z (keeps the negative log-likelihood finite).
 MIN_SD = 1e-3
+
+
 #: Speed (m/s) above which a simulated training profile counts as blown up: no object on a
 #: ramp of at most 1 m reaches sqrt(2 g 1 m) = 4.4 m/s.
 MAX_SPEED = 10.0
-#: Folder of the models shipped inside the package (package data, so ``pip install .`` has
-#: them too; searched first by :func:`find_model`).
-MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
-#: Environment variable naming more folders of trained models (``os.pathsep``-separated),
-#: searched after :data:`MODELS_DIR` and before ``./models`` (where ``galileo_jax.train``
-#: writes by default).
-MODELS_ENV = "GALILEO_JAX_MODELS"
+
+
 #: Largest relative difference between a video's frame rate and the model's.
 FPS_TOLERANCE = 0.02
 
@@ -153,7 +152,6 @@ class CNNSpec:
         return spec
 
 
-# ---------------------------------------------------------------------------- networks
 class SeedCNN(nnx.Module):
     """The seed's network (NOTES.md "CNN"), ``x (B, L, T + 1) -> (B, 2, d)``.
 
@@ -224,7 +222,6 @@ def build_network(spec: CNNSpec, seed: int = 0) -> nnx.Module:
     return ProfileCNN(spec.n_traces, spec.dim, spec.n_samples, spec.width, spec.hidden, rngs=rngs)
 
 
-# ---------------------------------------------------------------------------- predictions
 class Prediction(NamedTuple):
     """The network's answer for a batch of profiles (NumPy or JAX arrays).
 
@@ -297,7 +294,7 @@ def loss(spec: CNNSpec, graphdef, params, x: jax.Array, theta: jax.Array, beta: 
         theta: (B, d) true parameters.
         beta: weighting exponent in [0, 1] (0: plain NLL; 1: mu learns as under squared error).
 
-    Examples whose mask is all zero (rollouts :func:`simulate_examples` dropped) do not count.
+    Examples whose mask is all zero (rollouts :func:`~galileo_jax.inference.cnn_training.simulate_examples` dropped) do not count.
     """
     out = nnx.merge(graphdef, params)(x)
     lo, hi = _space_bounds(spec)
@@ -318,7 +315,6 @@ def usable(x: jax.Array) -> jax.Array:
     return jnp.any(x[..., -1] > 0, axis=-1)
 
 
-# ---------------------------------------------------------------------------- the input window
 def network_input(spec: CNNSpec, obs: Observation) -> tuple[np.ndarray, float]:
     """The network's input for an observed profile, and where its window starts.
 
@@ -351,98 +347,6 @@ def network_input(spec: CNNSpec, obs: Observation) -> tuple[np.ndarray, float]:
     return x, float(shift)
 
 
-# ---------------------------------------------------------------------------- simulated training data
-class NoiseModel(NamedTuple):
-    """How training profiles are corrupted and cut (the observation model of
-    :mod:`galileo_jax.likelihood`: independent Gaussian position errors, differenced).
-
-    Attributes:
-        position_sd: (low, high) in m: each trace's position noise SD is log-uniform on it.
-        min_samples: shortest valid length of a training window (samples).
-        prefix: largest masked prefix (samples), drawn for a third of the examples (videos that
-            start less than ``release_offset`` before the release).
-    """
-
-    position_sd: tuple[float, float] = (5e-5, 3e-3)
-    min_samples: int = 24
-    prefix: int = 6
-
-
-def training_prior(space: ParamSpace, scene: Scene, key: jax.Array, n: int, slide_margin: float = 0.02) -> jax.Array:
-    """n draws (n, d) of theta from the prior of ``space``, with object 1's friction below
-    tan(ramp angle) - ``slide_margin`` when it starts on the ramp (so it slides: ``fit``
-    rejects videos where it never moves). Pure; ``scene`` is read in Python only.
-    """
-    theta = space.sample_prior(key, n)
-    if "k1" in space.names and scene.placement(0) == "ramp":
-        j = space.index("k1")
-        lo = space.lower[j]
-        hi = min(space.upper[j], math.tan(scene.ramp.angle) - slide_margin)
-        u = jax.random.uniform(jax.random.fold_in(key, 1), (n,), minval=1e-6, maxval=1 - 1e-6)
-        theta = theta.at[:, j].set(lo + (hi - lo) * u)
-    return theta
-
-
-#: The seed's training and test prior (NOTES.md "CNN", dissertation 4.3): frictions uniform on
-#: (0, SEED_FRICTION), masses on (0, 1).
-SEED_FRICTION = 0.3
-
-
-def seed_prior(space: ParamSpace, key: jax.Array, n: int) -> jax.Array:
-    """n draws (n, d) of theta from the seed's prior: k1, k2 ~ U(0, 0.3), phi = (m1 - m2) / (m1 + m2)
-    with m1, m2 ~ U(0, 1) (so phi is not uniform), the other coordinates (the release time) from
-    ``space``'s prior. Pure. The like-for-like setting of the seed's error table."""
-    k = jax.random.split(key, 3)
-    theta = space.sample_prior(k[0], n)
-    fr = jax.random.uniform(k[1], (n, 2), minval=0.0, maxval=SEED_FRICTION)
-    m = jax.random.uniform(k[2], (n, 2), minval=1e-3, maxval=1.0)
-    cols = {"k1": fr[:, 0], "k2": fr[:, 1], "phi": (m[:, 0] - m[:, 1]) / (m[:, 0] + m[:, 1])}
-    for name, col in cols.items():
-        if name in space.names:
-            theta = theta.at[:, space.index(name)].set(col.astype(theta.dtype))
-    return theta
-
-
-def simulate_examples(engine, spec: CNNSpec, noise: NoiseModel, theta: jax.Array, key: jax.Array,
-                      views: int = 1) -> jax.Array:
-    """Network inputs (n * views, L, T + 1) float32 for parameters ``theta`` (n, d) (pure, jittable).
-
-    One rollout per row of ``theta`` on ``engine`` (MJX: vmapped in chunks of ``engine.max_batch``;
-    C MuJoCo: one batched native call through a callback), at the window's frame times t_k = k / fps, the
-    release at ``release_offset`` + theta's ``dt_release``), then ``views`` noisy, cut copies of
-    each: position noise e ~ N(0, sd^2) per trace with sd log-uniform on ``noise.position_sd``,
-    velocity noise (e[k+1] - e[k]) * fps; a valid length uniform on [min_samples, L]; a masked
-    prefix for a third of the copies. Rows of the output are grouped by view (view-major).
-    """
-    from galileo_jax.inference.problem import ProblemData, map_batch
-
-    n = theta.shape[0]
-    L, T = spec.n_samples, spec.n_traces
-    data = ProblemData(jnp.arange(L + 1) / spec.fps, jnp.asarray(spec.release_offset), None)
-    prof = map_batch(lambda t: engine.profile_theta(t, data), jnp.asarray(theta, jnp.float64), engine.max_batch)
-    # A rollout that blew up (extreme mass ratios: phi near +-1 leaves an object of ~0 kg) is
-    # dropped: all-zero input and mask, which the loss skips (:func:`usable`).
-    ok = jnp.all(jnp.isfinite(prof) & (jnp.abs(prof) <= MAX_SPEED), axis=(1, 2))
-    prof = jnp.where(ok[:, None, None], prof, 0.0)
-    ok = jnp.tile(ok, views)
-    prof = jnp.tile(jnp.swapaxes(prof, 1, 2).astype(jnp.float32), (views, 1, 1))  # (B, L, T)
-    b = prof.shape[0]
-    k_sd, k_e, k_len, k_pre, k_has = jax.random.split(key, 5)
-    lo, hi = math.log(noise.position_sd[0]), math.log(noise.position_sd[1])
-    sd = jnp.exp(jax.random.uniform(k_sd, (b, 1, T), jnp.float32, minval=lo, maxval=hi))
-    e = sd * jax.random.normal(k_e, (b, L + 1, T), jnp.float32)
-    v = prof + jnp.diff(e, axis=1) * spec.fps
-    length = jax.random.randint(k_len, (b, 1), noise.min_samples, L + 1)
-    prefix = jnp.where(jax.random.uniform(k_has, (b, 1)) < 1 / 3,
-                       jax.random.randint(k_pre, (b, 1), 0, noise.prefix + 1), 0)
-    k = jnp.arange(L)[None]
-    mask = ((k >= prefix) & (k < length) & ok[:, None]).astype(jnp.float32)[..., None]  # (B, L, 1)
-    # float32 throughout: with x64 on, float64 inputs would promote the convolutions to float64,
-    # 3x slower per training step (measured: 2.8 s vs 0.9 s of simulation).
-    return jnp.concatenate([v * mask, mask], axis=-1).astype(jnp.float32)
-
-
-# ---------------------------------------------------------------------------- saved models
 class TrainedModel(NamedTuple):
     """A trained network ready to predict.
 
@@ -461,102 +365,6 @@ class TrainedModel(NamedTuple):
     info: dict
 
 
-def save_model(path: Path, spec: CNNSpec, params, info: dict) -> None:
-    """Write a trained model to folder ``path`` atomically: ``model.json`` (spec and training
-    record) and ``weights/`` (an Orbax checkpoint of the parameter state). An existing model
-    there is replaced only once the new one is complete."""
-    import shutil
-    import orbax.checkpoint as ocp
-
-    path = Path(path).resolve()
-    tmp = path.with_name(path.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    with ocp.StandardCheckpointer() as ckpt:
-        ckpt.save(tmp / "weights", jax.tree_util.tree_map(np.asarray, nnx.to_pure_dict(params)))
-    (tmp / "model.json").write_text(json.dumps({"spec": spec.to_json(), **info}, indent=1, default=float))
-    old = path.with_name(path.name + ".old")
-    shutil.rmtree(old, ignore_errors=True)
-    if path.exists():
-        path.rename(old)
-    tmp.rename(path)
-    shutil.rmtree(old, ignore_errors=True)
-
-
-def load_model(path: Path) -> TrainedModel:
-    """Load a model folder written by :func:`save_model` (or by ``python -m galileo_jax.train``).
-
-    Raises:
-        CNNError: the folder is missing or not a model.
-    """
-    import orbax.checkpoint as ocp
-
-    path = Path(path).resolve()
-    meta = path / "model.json"
-    if not meta.is_file():
-        raise CNNError(f"{path} is not a trained CNN model (no model.json); train one with python -m galileo_jax.train")
-    try:
-        info = json.loads(meta.read_text())
-        spec = CNNSpec.from_json(info.pop("spec"))
-    except (ValueError, KeyError, TypeError) as err:
-        raise CNNError(f"{meta} is unreadable ({err}); retrain the model") from None
-    graphdef, params = nnx.split(build_network(spec), nnx.Param)
-    target = jax.tree_util.tree_map(np.asarray, nnx.to_pure_dict(params))
-    try:
-        with ocp.StandardCheckpointer() as ckpt:
-            restored = ckpt.restore(path / "weights", target)
-    except Exception as err:  # noqa: BLE001 - orbax raises many kinds; any means an unusable model
-        raise CNNError(f"cannot read the weights in {path / 'weights'} ({type(err).__name__}); retrain the model") from None
-    nnx.replace_by_pure_dict(params, jax.tree_util.tree_map(jnp.asarray, restored))
-    return TrainedModel(spec, graphdef, params, path, info)
-
-
-def find_model(scene: Scene, fps: float, path: Path | str | None = None,
-               architecture: str | None = None) -> TrainedModel:
-    """The trained model for ``scene`` at ``fps``: ``path`` if given, else the first folder
-    under :func:`model_dirs` whose spec matches the scene's physics (:func:`scene_hash`) and
-    frame rate (within :data:`FPS_TOLERANCE`), preferring the default architecture (and,
-    among equals, the earlier folder).
-
-    Raises:
-        CNNError: ``path`` does not fit the scene, or no shipped model does (the message says
-            how to train one).
-    """
-    want = scene_hash(scene)
-    if path is not None:
-        model = load_model(Path(path))
-        if model.spec.scene_hash != want:
-            raise CNNError(f"the CNN in {path} was trained on scene {model.spec.scene!r}, whose physics differ "
-                           f"from scene {scene.name!r}; train one for this scene (python -m galileo_jax.train)")
-        return model
-    found = []
-    metas = [m for d in model_dirs() for m in sorted(d.glob("*/model.json"))]
-    for order, meta in enumerate(metas):
-        try:
-            spec = CNNSpec.from_json(json.loads(meta.read_text())["spec"])
-        except (ValueError, KeyError, TypeError):
-            continue
-        if spec.scene_hash == want and abs(spec.fps - fps) <= FPS_TOLERANCE * spec.fps \
-                and (architecture is None or spec.architecture == architecture):
-            found.append((spec.architecture != "profile", order, meta.parent))
-    if not found:
-        raise CNNError(f"no trained CNN matches scene {scene.name!r} at {fps:g} fps; train one: python -m "
-                       f"galileo_jax.train --config configs/cnn_ramp20.yaml --scene YOUR_SCENE.yaml --out models/NAME")
-    return load_model(sorted(found)[0][2])
-
-
-def model_dirs() -> list[Path]:
-    """Folders searched for trained models, in order: the package's own (:data:`MODELS_DIR`),
-    those named by ``$GALILEO_JAX_MODELS`` (:data:`MODELS_ENV`), and ``./models``."""
-    extra = [Path(p) for p in os.environ.get(MODELS_ENV, "").split(os.pathsep) if p]
-    out = []
-    for d in [MODELS_DIR, *extra, Path.cwd() / "models"]:
-        if d.is_dir() and all(d.resolve() != o.resolve() for o in out):
-            out.append(d)
-    return out
-
-
-# ---------------------------------------------------------------------------- an estimate for one video
 class CNNEstimate(NamedTuple):
     """The network's answer for one observed video, in the fit's coordinates (NumPy).
 
