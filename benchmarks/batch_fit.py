@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     if args.worker:
         print("RECORD " + json.dumps(worker(args.videos, args.engine)), flush=True)
         return 0
-    from scaling import machine_line
+    from _common import machine_line
 
     from galileo_jax.report.results import atomic_path, write_json
 

@@ -24,9 +24,7 @@ from __future__ import annotations
 import argparse
 import functools
 import itertools
-import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -34,6 +32,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from _common import machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -125,7 +124,7 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
 def write_tables(results: list[dict], n_tests: int) -> None:
     from galileo_jax.report.results import write_json
 
-    machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}"
+    machine = machine_line()
     write_json(RESULTS / "cnn_accuracy.json", {"machine": machine, "tests": n_tests, "seed_table": SEED_TABLE,
                                                "models": results})
     names = ("k1", "k2", "phi", "dt_release")

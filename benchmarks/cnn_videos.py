@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -34,6 +33,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from _common import machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -124,7 +124,7 @@ def write_tables(work: Path) -> None:
     name = work.name
     records = [json.loads(p.read_text()) for p in sorted(work.glob("video_*.json")) if not p.name.endswith("truth.json")]
     records = [r for r in records if "runs" in r]
-    machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}"
+    machine = machine_line()
     methods = list(dict.fromkeys(m for r in records for m in r["runs"]))
     summary = {}
     for m in methods:

@@ -246,7 +246,7 @@ def main(argv=None) -> int:
 
     from galileo_jax.jaxcache import enable_compilation_cache
     from galileo_jax.report.results import atomic_path
-    from scaling import machine_line
+    from _common import machine_line
 
     enable_compilation_cache()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]

@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -53,6 +52,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from _common import code_version, machine_line, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Video timing of every rendered video (frames per second, seconds).
@@ -218,24 +218,7 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
             "fitted": {f.name: {n: [float(v), float(lo), float(hi)] for n, v, (lo, hi) in
                                 zip(f.result.names, f.result.theta, f.result.interval90)} for f in diag.fits},
             "render_s": t_render, "diagnose_s": time.perf_counter() - t1, "timings": diag.timings,
-            "code": code_version()}
-
-
-def code_version() -> str:
-    """Commit of the checkout, with ``-modified`` if the package or this script differ from it
-    (records say which code made them)."""
-    import subprocess
-
-    def git(*args) -> subprocess.CompletedProcess:
-        return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True, timeout=10)
-
-    try:
-        out = git("rev-parse", "--short", "HEAD").stdout.strip()
-        if out and git("diff", "--quiet", "HEAD", "--", "galileo_jax", "benchmarks/diagnose_calibration.py").returncode:
-            out += "-modified"
-    except (OSError, subprocess.SubprocessError):
-        out = ""
-    return out or "unknown"
+            "code": code_version("benchmarks/diagnose_calibration.py")}
 
 
 def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> float:
@@ -345,14 +328,6 @@ def table_stem(family: str) -> str:
     return "diagnose_calibration" + ("" if family == "ours" else f"_{family}")
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (concurrent runs share the tables)."""
-    from galileo_jax.report.results import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-
-
 def _named_fit(record: dict) -> str:
     """The named effect's fitted parameters with their 90% intervals ('-' if none, or not recorded)."""
     from galileo_jax.effects import get_effect
@@ -379,7 +354,7 @@ def write_tables(work: Path, family: str = "ours") -> None:
     stem = table_stem(family)
     records = [json.loads(p.read_text()) for p in sorted(work.glob("*.json")) if not p.name.endswith(".truth.json")]
     summary = summarize(records)
-    machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, {platform.python_version()}"
+    machine = machine_line()
     write_atomic(RESULTS / f"{stem}.json", json.dumps({"machine": machine, "summary": summary,
                                                                    "records": records}, indent=1, default=float))
     foreign = "foreign renders: perspective camera, elliptic friction cone, ramp board with an edge, realistic effect sizes"

@@ -24,12 +24,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from _common import machine_line  # noqa: E402
 
 #: Largest single MJX vmap (see measure).
 MJX_CHUNK = 256
@@ -180,7 +180,7 @@ def main(argv=None) -> int:
     if old:  # rows measured now replace the committed ones of the same batch size
         new = {r["batch"] for r in rows}
         rows = sorted([r for r in old["rows"] if r["batch"] not in new] + rows, key=lambda r: r["batch"])
-    machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}"
+    machine = machine_line()
     import jax
     import mujoco
 

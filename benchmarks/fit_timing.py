@@ -12,12 +12,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from _common import machine_line, write_atomic, write_json_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,14 +44,14 @@ def main() -> None:
         rows.append({"method": method, "cold_s": round(cold, 1), "warm_s": round(warm, 1),
                      "estimate": {k: v.get("estimate") for k, v in result["parameters"].items()}})
         print(rows[-1], flush=True)
-    machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
+    machine = machine_line()
     res = ROOT / "benchmarks" / "results"
     res.mkdir(parents=True, exist_ok=True)
-    (res / "fit_timing.json").write_text(json.dumps({"machine": machine, "video": args.video, "rows": rows}, indent=2))
+    write_json_atomic(res / "fit_timing.json", {"machine": machine, "video": args.video, "rows": rows})
     lines = [f"# fit wall time on {args.video}", "", f"Machine: {machine}", "",
              "| method | cold (s) | warm cache (s) |", "|---|---|---|"]
     lines += [f"| {r['method']} | {r['cold_s']} | {r['warm_s']} |" for r in rows]
-    (res / "fit_timing.md").write_text("\n".join(lines) + "\n")
+    write_atomic(res / "fit_timing.md", "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

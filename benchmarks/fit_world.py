@@ -105,7 +105,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
-    from scaling import machine_line
+    from _common import machine_line, write_atomic, write_json_atomic
 
     args.work.mkdir(parents=True, exist_ok=True)
     condition = Condition(args.look, "perspective", "960x540", False)
@@ -144,7 +144,7 @@ def main(argv=None) -> int:
            "videos": len(records), "fitted": len(ok), "summary": summary, "records": records}
     name = "fit_world" + ("" if args.look == "plain" else f"_{args.look}") + (
         "" if args.config is None else f"_{args.config.stem}")
-    (RESULTS / f"{name}.json").write_text(json.dumps(doc, indent=1))
+    write_json_atomic(RESULTS / f"{name}.json", doc)
     lines = [f"# Fit accuracy on {args.look} objects seen through a perspective camera", "",
              f"machine: {doc['machine']}", "", f"command: `{doc['command']}`", "",
              " ".join(__doc__.split("\n\n")[1].split()), "", " ".join(__doc__.split("\n\n")[2].split()), "",
@@ -155,7 +155,7 @@ def main(argv=None) -> int:
         if s["median_error"] is not None:
             lines.append(f"| {n} | {s['median_error']:.4f} | {s['goal']} | {s['coverage']:.2f} |")
     lines += ["", warning_counts(records), "", *rows, ""]
-    (RESULTS / f"{name}.md").write_text("\n".join(lines))
+    write_atomic(RESULTS / f"{name}.md", "\n".join(lines))
     print("\n".join(lines))
     return 0
 

@@ -34,7 +34,6 @@ Writes ``benchmarks/results/foreign_physics.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -156,7 +155,7 @@ def main(argv=None) -> int:
     import jax
 
     from galileo_jax.jaxcache import enable_compilation_cache
-    from scaling import machine_line
+    from _common import machine_line, write_atomic, write_json_atomic
 
     jax.config.update("jax_enable_x64", True)
     enable_compilation_cache()
@@ -170,7 +169,7 @@ def main(argv=None) -> int:
                   f"{r['foreign_fitted']:.4f} (LR {r['lr_control']:.1f}) ({r['seconds']:.0f} s)", flush=True)
     doc = {"machine": machine_line(), "command": "python benchmarks/foreign_physics.py " + " ".join(argv or sys.argv[1:]),
            "floor_m_per_s": FLOOR, "records": records}
-    (RESULTS / "foreign_physics.json").write_text(json.dumps(doc, indent=1))
+    write_json_atomic(RESULTS / "foreign_physics.json", doc)
     rows = ["| effect | draw | hidden value | fitted | ours + effect | foreign + effect | + effect fitted | LR "
             "| foreign | + effect fitted | control LR |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in records:
@@ -185,7 +184,7 @@ def main(argv=None) -> int:
           "RMSE (m/s) of the velocity profile left after each fit (module docstring). 'LR': the likelihood-ratio "
           f"statistic of the model with the effect against the base model, read at a tracking noise floor of {FLOOR} "
           "m/s (`lr_at_floor`), on the foreign physics with the effect and (control) without it.", "", *rows, ""]
-    (RESULTS / "foreign_physics.md").write_text("\n".join(md))
+    write_atomic(RESULTS / "foreign_physics.md", "\n".join(md))
     print("\n".join(md))
     return 0
 

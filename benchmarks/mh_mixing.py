@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -37,6 +36,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from _common import machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -104,7 +104,7 @@ def write_tables(records: list[dict]) -> str:
     videos = [v for v in VIDEOS if any(r["video"] == v for r in records)]
     by = {(r["video"], r["variant"]): r for r in records}
     lines = ["# mh mixing: proposal variants on rendered videos", "",
-             f"machine: {platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}; "
+             f"machine: {machine_line()}; "
              f"engine: {', '.join(sorted({r['engine'] for r in records}))}", "",
              "Command: `python benchmarks/mh_mixing.py` (module docstring). 16 chains, 400 kept steps, warm-up 300 "
              "unless named; same PRNG key for every variant. max R-hat, min ESS: over k1, k2, phi (ArviZ rank-normalised "

@@ -20,12 +20,13 @@ import argparse
 import copy
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _common import machine_line, write_atomic, write_json_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -113,11 +114,10 @@ def main() -> None:
     one = spawn("both")
     with tempfile.TemporaryDirectory() as cache:
         fresh = spawn("first", cache)["rows"] + spawn("second", cache)["rows"]
-    machine = f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}, JAX {one['jax']}"
+    machine = machine_line()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps({"machine": machine, "one_process": one["rows"],
-                                                    "fresh_processes": fresh}, indent=2))
+    write_json_atomic(out.with_suffix(".json"), {"machine": machine, "one_process": one["rows"], "fresh_processes": fresh})
     cols = ["problem_s", "log_density_first_s", "log_density_again_s", "fit_grad_s", "fit_grad_push_s"]
     head = ["| scene | " + " | ".join(c.removesuffix("_s").replace("_", " ") + " (s)" for c in cols) + " |",
             "|---|" + "---|" * len(cols)]
@@ -129,7 +129,7 @@ def main() -> None:
              "", "Both scenes in one process, no persistent compilation cache:", ""] + table(one["rows"])
     lines += ["", "Each scene in a fresh process; the second process finds the first one's persistent "
               "compilation cache:", ""] + table(fresh)
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    write_atomic(out.with_suffix(".md"), "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

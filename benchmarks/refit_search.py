@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -32,7 +31,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from diagnose_calibration import code_version, write_atomic  # noqa: E402
+from _common import code_version, machine_line, write_atomic  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 RECORDS = RESULTS / "diagnose_calibration"
@@ -73,13 +72,13 @@ def run_one(name: str, videos: Path) -> dict:
             "attainable_rmse": rec["attainable_rmse"], "rmse_base": rec["rmse_base"], "rmse_before": before,
             "rmse_lm": (fit.search or {}).get("rmse_lm", float("nan")), "rmse_after": fit.rmse, "after_over_floor": fit.rmse / rec["noise_floor"],
             "search": fit.search, "refit_s": refit_s, "named_first_in_record": rec["named_first"],
-            "code": code_version(), "machine": f"{platform.machine()}, {os.cpu_count()} CPU cores"}
+            "code": code_version("benchmarks/refit_search.py"), "machine": machine_line()}
 
 
 def write_tables(out: Path) -> None:
     recs = [json.loads(p.read_text()) for p in sorted(out.glob("*.json"))]
     lines = ["# Refit with CMA-ES search (rendered calibration videos)", "",
-             f"machine: {platform.machine()}, {os.cpu_count()} CPU cores", "",
+             f"machine: {machine_line()}", "",
              "Command: `python benchmarks/refit_search.py --videos-dir DIR NAME ...`. The hidden effect's refit, "
              "from the base estimate and screen of the video's diagnose record: 'record' is that record's refit "
              "(LM from screened starts; older code, other random starts), 'LM' this run's LM end, 'after' the "

@@ -58,8 +58,6 @@ import argparse
 import inspect
 import json
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -68,6 +66,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import cnn_videos  # noqa: E402  (sets MUJOCO_GL=egl unless set; ROOT, RESULTS, NAMES)
 import numpy as np  # noqa: E402
+from _common import machine_line  # noqa: E402
 
 ROOT, RESULTS, NAMES = cnn_videos.ROOT, cnn_videos.RESULTS, cnn_videos.NAMES
 SCENES = ("ramp_10", "ramp_20")
@@ -370,19 +369,6 @@ def table_lines(rows: dict) -> list[str]:
     return lines
 
 
-def machine() -> str:
-    import jax
-
-    cpu = ""
-    try:
-        cpu = next(ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                   if ln.startswith("model name")) + ", "
-    except (OSError, StopIteration):
-        pass
-    return (f"{platform.machine()}, {cpu}{os.cpu_count()} CPU cores, Python {platform.python_version()}, "
-            f"JAX {jax.__version__} ({jax.default_backend()})")
-
-
 def write_tables(work: Path, s: dict) -> None:
     from galileo_jax.report.results import atomic_path, write_json
 
@@ -391,7 +377,7 @@ def write_tables(work: Path, s: dict) -> None:
     records = [r for r in records if "runs" in r]
     groups = {"all": records, **{sc: [r for r in records if r["scene"] == sc] for sc in SCENES}}
     summary = {g: aggregate(rs) for g, rs in groups.items() if rs}
-    mach = machine()
+    mach = machine_line()
     write_json(work.parent / f"{work.name}.json", {"machine": mach, "settings": s, "summary": summary,
                                                     "dissertation": [dict(zip(("method", "l1", "l2"), d))
                                                                      for d in DISSERTATION],

@@ -51,7 +51,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -60,6 +59,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from _common import machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -263,11 +263,6 @@ def write_all(path: Path, doc: dict) -> None:
         tmp.write_text("\n".join(lines) + "\n")
 
 
-def machine_line() -> str:
-    import jax
-
-    return (f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}, "
-            f"JAX {jax.__version__} ({jax.default_backend()})")
 
 
 def main(argv=None) -> int:

@@ -80,7 +80,6 @@ import json
 import logging
 import math
 import os
-import platform
 import re
 import sys
 import time
@@ -89,6 +88,8 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # _common, also when loaded by path (tests)
+from _common import machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -420,12 +421,6 @@ def run_set(scene, cfg, i: int, args, variants) -> dict:
 
 
 # --------------------------------------------------------------------------- tables
-def machine_line() -> str:
-    import jax
-    import mujoco
-
-    return (f"{platform.machine()}, {os.cpu_count()} CPU cores, Python {platform.python_version()}, "
-            f"JAX {jax.__version__} ({jax.default_backend()}), mujoco {mujoco.__version__}")
 
 
 def _values(rs, key) -> np.ndarray:

@@ -9,15 +9,13 @@ For the 20 degree two-object scene (30 fps video, 2.5 s), simulates a few parame
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import machine_line, write_atomic, write_json_atomic  # noqa: E402
 
 from galileo_jax.physics.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
 from galileo_jax.scene import load_scene
@@ -50,16 +48,16 @@ def main() -> None:
         rows.append({"substeps": sub, "dt_s": 1 / (30 * sub), "rms_vs_1_1920_m_per_s": round(rms, 4),
                      "max_abs_m_per_s": round(worst, 3), "seconds_per_rollout_batch4": round(sec, 4)})
         print(rows[-1], flush=True)
-    machine = f"{platform.machine()}, {os.cpu_count()} cores"
+    machine = machine_line()
     res = ROOT / "benchmarks" / "results"
     res.mkdir(parents=True, exist_ok=True)
-    (res / "timestep.json").write_text(json.dumps({"machine": machine, "rows": rows}, indent=2))
+    write_json_atomic(res / "timestep.json", {"machine": machine, "rows": rows})
     lines = ["# Physics timestep vs velocity-profile error (20 deg scene, 30 fps, 2.5 s, 4 parameter sets)", "",
              f"Machine: {machine}. Reference: 64 steps per frame (dt = 1/1920 s).", "",
              "| steps/frame | dt (s) | RMS error (m/s) | max error (m/s) | s per rollout (batch 4) |", "|---|---|---|---|---|"]
     lines += [f"| {r['substeps']} | 1/{int(round(1 / r['dt_s']))} | {r['rms_vs_1_1920_m_per_s']} | "
               f"{r['max_abs_m_per_s']} | {r['seconds_per_rollout_batch4']} |" for r in rows]
-    (res / "timestep.md").write_text("\n".join(lines) + "\n")
+    write_atomic(res / "timestep.md", "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -194,7 +194,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
-    from scaling import machine_line
+    from _common import machine_line
 
     held_out = args.held_out > 0
     work = RESULTS / "tracking_heldout" if held_out else args.work

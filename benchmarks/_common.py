@@ -1,0 +1,63 @@
+"""What every benchmark script shares: where results go, the machine line and code version each
+table records, and atomic writes (several runs may write the same table).
+
+Scripts run as ``python benchmarks/NAME.py``, so this folder is on ``sys.path`` and they
+``from _common import ...``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def machine_line() -> str:
+    """One line naming the machine and software a measurement ran on, e.g. ``x86_64, AMD EPYC,
+    2 CPU cores, Python 3.11.7, JAX 0.10.2 (cpu), MuJoCo 3.3.7`` (timings differ 2x between
+    machines: compare only rows measured on the same line)."""
+    import jax
+    import mujoco
+
+    cpu = ""
+    try:
+        cpu = next(ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
+                   if ln.startswith("model name")) + ", "
+    except (OSError, StopIteration):
+        pass
+    return (f"{platform.machine()}, {cpu}{os.cpu_count()} CPU cores, Python {platform.python_version()}, "
+            f"JAX {jax.__version__} ({jax.default_backend()}), MuJoCo {mujoco.__version__}")
+
+
+def code_version(*paths: str) -> str:
+    """Commit of the checkout, with ``-modified`` if the package (or one of ``paths``, relative
+    to the repository) differs from it, so a record says which code made it; "unknown" outside git."""
+
+    def git(*args) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True, timeout=10)
+
+    try:
+        out = git("rev-parse", "--short", "HEAD").stdout.strip()
+        if out and git("diff", "--quiet", "HEAD", "--", "galileo_jax", *paths).returncode:
+            out += "-modified"
+    except (OSError, subprocess.SubprocessError):
+        out = ""
+    return out or "unknown"
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (a temporary file in the same folder, then renamed)."""
+    from galileo_jax.report.results import atomic_path
+
+    with atomic_path(Path(path)) as tmp:
+        tmp.write_text(text)
+
+
+def write_json_atomic(path: Path, doc) -> None:
+    """Write ``doc`` as indented JSON to ``path`` atomically."""
+    write_atomic(path, json.dumps(doc, indent=1))
