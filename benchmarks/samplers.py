@@ -26,7 +26,7 @@ Gauss-Newton interval, cnn); the median over videos of mh's max R-hat (and the w
 ESS per second (smallest bulk ESS over the sampled identifiable parameters, ArviZ via
 :func:`~galileo_jax.inference.summarize_mh`, divided by the sampler's wall time); rollouts
 (counted for the samplers, estimated for grad from its settings and LM steps, see
-:func:`grad_rollouts`); mean wall time of the method (compilation excluded: every method first
+:func:`galileo_jax.inference.grad.count_rollouts`); mean wall time of the method (compilation excluded: every method first
 runs on one warm-up video per angle, with mh and the seed's sampler shortened to a chunk or
 two, which compiles the same programs).
 
@@ -55,7 +55,6 @@ tables go beside the folder: ``<out>.md`` and ``<out>.json`` (default
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import math
 import sys
@@ -150,19 +149,6 @@ def profile_errors(observed: np.ndarray, simulated: np.ndarray, fps: float) -> t
     return np.abs(diff).sum(axis=1), np.sqrt((diff ** 2).sum(axis=1))
 
 
-def grad_rollouts(res, n_screen: int, dim: int) -> int:
-    """Rollouts of one ``fit_grad`` (estimated, not counted): the screen, then per start (all
-    starts run vmapped until the slowest stops) one residual and 2 dim central differences per
-    LM step plus its start and end costs, the final Jacobian (2 dim + 1) and the polish's
-    random search (``fit_grad``'s defaults)."""
-    from galileo_jax.inference import fit_grad
-
-    defaults = inspect.signature(fit_grad).parameters
-    polish = defaults["polish_rounds"].default * defaults["polish_points"].default
-    starts = len(res.starts_iterations)
-    return int(n_screen + starts * (int(np.max(res.starts_iterations)) * (2 * dim + 1) + 2) + 2 * dim + 1 + polish)
-
-
 def mh_rollouts(n_chains: int, n_warmup: int, n_samples: int, chunk: int = 20) -> int:
     """Rollouts of one ``run_mh``: one per chain and step, steps rounded up to whole chunks."""
     return n_chains * chunk * (math.ceil(n_warmup / chunk) + math.ceil(n_samples / chunk))
@@ -212,6 +198,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
     from galileo_jax.inference import fit_grad, run_mh, run_seed_mh, summarize_mh
     from galileo_jax.inference import cnn
     from galileo_jax.inference import cnn_files
+    from galileo_jax.inference.grad import count_rollouts
     from galileo_jax.observe import observe
     from galileo_jax.pipeline import grad_start_from_cnn
     from galileo_jax.scene import load_scene
@@ -223,7 +210,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
     obs = observe(video, scene, progress=False)
     observe_s = time.perf_counter() - t
     problem = problem_for(scene, obs, cfg)
-    space, dim = problem.space, problem.space.dim
+    space = problem.space
     evaluate = Evaluator(problem, truth)
     key = jax.random.PRNGKey(key_seed)
     keys = dict(zip(METHODS, jax.random.split(key, len(METHODS))))
@@ -275,7 +262,8 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
     def grad_run(t0: float, **kw) -> dict:
         res = fit_grad(problem, keys["grad"], jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, **kw)
         elapsed = time.perf_counter() - t0
-        return {**evaluate(res.theta), "time_s": elapsed, "simulations": grad_rollouts(res, kw["n_screen"], dim),
+        polish = {k: kw[k] for k in ("polish_rounds", "polish_points") if k in kw}
+        return {**evaluate(res.theta), "time_s": elapsed, "simulations": count_rollouts(res, n_screen=kw["n_screen"], **polish),
                 "lm_steps": int(np.sum(res.starts_iterations)), "loglik": float(res.loglik),
                 "inside90": evaluate.inside({n: res.interval90[space.names.index(n)] for n in NAMES})}
 

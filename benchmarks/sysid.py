@@ -62,7 +62,7 @@ the warm-up times are reported as "first call", measured without JAX's persisten
 compilation cache unless ``--cache``; sysid's rollouts run on ``os.cpu_count()`` C threads
 through ``mujoco.rollout``, ours on XLA's CPU threads); simulations (sysid: rollouts counted
 in the residual callback; ours: rollouts executed by the batched programs, counted from the
-iteration counts, see :func:`grad_rollouts`); iterations. Writes
+iteration counts, :func:`galileo_jax.inference.grad.count_rollouts`); iterations. Writes
 ``benchmarks/results/sysid.{md,json}`` atomically after each set; rerunning with the same
 settings resumes from the JSON (``--fresh``: start again).
 
@@ -186,26 +186,11 @@ class Referee:
 
 
 # --------------------------------------------------------------------------- ours
-def grad_rollouts(res, n_screen: int, d: int, polish_rounds: int, polish_points: int, screened: bool) -> int:
-    """Rollouts the batched programs of one fit_grad call execute.
-
-    The S starts run as one vmapped optimistix while-loop, so every start computes until the
-    last one stops: S x max(steps) LM steps, each one central-difference residual Jacobian
-    (2d + 1 rollouts, the centre giving the residual), plus the start's and the end
-    point's residuals (2 per start); then the screen, the final FD Jacobian (2d + 1) and the
-    polish (rounds x points, and the Jacobian again if the polish moved the point). Checked
-    against a callback that counts the rollouts the compiled programs run (to the rollout).
-    """
-    s = len(res.starts_iterations)
-    lm = s * int(np.max(res.starts_iterations)) * (2 * d + 1) + 2 * s
-    moved = polish_rounds > 0 and res.cost < float(np.min(res.starts_cost))
-    return int((n_screen if screened else 0) + lm + (2 * d + 1) * (2 if moved else 1) + polish_rounds * polish_points)
-
-
 def run_grad(problem, cfg, start, mode: str) -> dict:
     import jax
 
     from galileo_jax.inference import fit_grad
+    from galileo_jax.inference.grad import count_rollouts
 
     kw = dict(max_steps=cfg.grad.max_steps, jacobian=cfg.grad.jacobian, polish_rounds=POLISH[0],
               polish_points=POLISH[1])
@@ -219,7 +204,8 @@ def run_grad(problem, cfg, start, mode: str) -> dict:
     names = list(problem.space.names)
     theta = np.array([res.theta[names.index(n)] for n in NAMES])
     return {"theta": theta.tolist(), "time_s": elapsed, "starts": _starts(res, names),
-            "simulations": grad_rollouts(res, cfg.grad.screen, problem.dim, *POLISH, mode == "default"),
+            "simulations": count_rollouts(res, n_screen=cfg.grad.screen if mode == "default" else 0,
+                                          polish_rounds=POLISH[0], polish_points=POLISH[1]),
             "iterations": int(np.sum(res.starts_iterations)), "iterations_best": int(res.iterations),
             "converged": bool(res.converged), "message": res.result or "successful"}
 

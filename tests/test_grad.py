@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from galileo_jax.inference.grad import fit_grad
+from galileo_jax.inference.grad import count_rollouts, fit_grad
 from galileo_jax.inference.problem import Problem, cached_jit, fd_jacobian_fn, simulated_observation
 from galileo_jax.inference.summary import summarize_grad
 from galileo_jax.params import ParamSpace
@@ -88,6 +88,23 @@ def test_grad_recovers_truth(problem_c):
     # simulated data with white noise and the model's own floor: no interval widened much
     assert res.inflation is not None and np.all(res.inflation >= 1.0) and np.all(res.inflation < 1.5)
     assert set(summ["diagnostics"]["interval_widening"]) == set(problem_c.names)
+
+
+def test_rollout_counter_counts_what_the_engine_ran(problem_c, monkeypatch):
+    """``count_rollouts`` (the benchmarks' one counter) equals the rollouts the C engine's host
+    callback actually ran during ``fit_grad``, polish included."""
+    from galileo_jax.physics import simulate_c
+
+    ran = []
+    real = simulate_c.rollout_poses_host
+
+    def counting(sim, mass, *args, **kw):
+        ran.append(int(np.shape(mass)[0]))
+        return real(sim, mass, *args, **kw)
+
+    monkeypatch.setattr(simulate_c, "rollout_poses_host", counting)
+    res = fit_grad(problem_c, jax.random.key(1), n_starts=2, n_screen=16, max_steps=6)
+    assert sum(ran) == count_rollouts(res, n_screen=16) > 16
 
 
 def test_grad_rejects_bad_arguments(problem):

@@ -458,6 +458,33 @@ def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, the
         time_s=elapsed, inflation=None if inflation is None else np.asarray(inflation, np.float64))
 
 
+def count_rollouts(res: GradResult, *, n_screen: int, polish_rounds: int = 3, polish_points: int = 64) -> int:
+    """Rollouts the batched programs of one :func:`fit_grad` call executed (the project's one
+    rollout counter: benchmarks compare methods and tools by it).
+
+    The S starts run as one vmapped optimistix while-loop, so every start computes until the
+    last one stops: S x max(steps) LM steps, each one central-difference residual Jacobian
+    (2d + 1 rollouts, the centre giving the residual), plus the start's and the end point's
+    residuals (2 per start); then the screen, the final FD Jacobian (2d + 1) and the polish
+    (rounds x points, and the Jacobian again if the polish moved the point). Checked against a
+    callback that counts the rollouts the compiled programs run, to the rollout
+    (``benchmarks/sysid.py``). The profile-likelihood check (``profile=True``) is not counted.
+
+    Args:
+        res: the fit's result (d = ``len(res.z)``).
+        n_screen: Latin-hypercube points the fit screened (0 when it started only from ``init``).
+        polish_rounds, polish_points: the fit's polish settings.
+
+    Returns:
+        the number of rollouts.
+    """
+    d = len(res.z)
+    s = len(res.starts_iterations)
+    lm = s * int(np.max(res.starts_iterations)) * (2 * d + 1) + 2 * s
+    moved = polish_rounds > 0 and res.cost < float(np.min(res.starts_cost))
+    return int(n_screen + lm + (2 * d + 1) * (2 if moved else 1) + polish_rounds * polish_points)
+
+
 def polish(problem, key: jax.Array, z: np.ndarray, cost: float, cov_z: np.ndarray, *, rounds: int = 3,
            points: int = 64, max_sd: float = 2.0) -> tuple[np.ndarray, float]:
     """Batched local random search from an LM end point: the rough-cost remedy.
