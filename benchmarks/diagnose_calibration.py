@@ -198,8 +198,8 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
     d = diag.decision
     attainable = attainable_rmse(rendered_scene, obs, params, effects, truth["release_time"])
     first = d["missing_effects"][0] if d["missing_effects"] else None
-    tied = [e for r in diag.rounds[:1] if r.get("indistinguishable") for e in r["indistinguishable"]["effects"]]
-    screen = diag.rounds[0]["screen"] if diag.rounds else []
+    tied = [e for r in diag.rounds[:1] if r.indistinguishable for e in r.indistinguishable["effects"]]
+    screen = diag.rounds[0].screen if diag.rounds else []
     rank = next((k + 1 for k, r in enumerate(screen) if r["effect"] == effect), None)
     return {"effect": effect, "index": i, "family": family, "truth": params,
             "unexplained_misfit": bool(d.get("unexplained_misfit", False)),
@@ -213,7 +213,7 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
             "final_over_attainable": d["rmse_final"] / attainable,
             "refits": [{k: x.get(k) for k in ("effect", "engine", "delta_loglik", "lr_scaled", "p_value", "rmse_after",
                                               "supported")}
-                       for x in (diag.rounds[0]["refits"] if diag.rounds else [])],
+                       for x in (diag.rounds[0].refits if diag.rounds else [])],
             "screen": screen, "verdict_base": d["verdict_base"], "verdict_final": d["verdict_final"],
             "fitted": {f.name: {n: [float(v), float(lo), float(hi)] for n, v, (lo, hi) in
                                 zip(f.result.names, f.result.theta, f.result.interval90)} for f in diag.fits},

@@ -86,35 +86,35 @@ def summary_text(diag, videos: list[Path]) -> str:
              f"  {diag.fits[0].criticism.get('verdict', '')}"]
     lines += calibration_lines(diag) + [""]
     for rnd in diag.rounds:
-        lines.append(f"  round {rnd['round']} (model: {rnd['base']}); threshold p < {rnd['threshold_p']:.3g}")
-        if rnd["screen"]:
+        lines.append(f"  round {rnd.round} (model: {rnd.base}); threshold p < {rnd.threshold_p:.3g}")
+        if rnd.screen:
             lines.append(f"    {'screen: effect':<26}{'score':>9}{'p':>10}{'grid gain':>11}{'at':>8}")
-            for r in rnd["screen"]:
+            for r in rnd.screen:
                 lines.append(f"    {r['effect']:<26}{r['score']:>9.1f}{r['p_value']:>10.2g}{r['grid_gain']:>11.1f}"
                              f"{r['best_value']:>8.3g}")
-        for tr in rnd.get("transfers", []):
+        for tr in rnd.transfers:
             lines.append(f"    the {tr['model']} model refitted on {ENGINE_NAMES[tr['engine']]} for the effects that act "
                          f"every step: RMSE {tr['rmse']:.4f} m/s ({tr['rmse_before']:.4f} on "
                          f"{ENGINE_NAMES[tr['from_engine']]})")
-        for nr in rnd.get("null_refit", []):
+        for nr in rnd.null_refit:
             lines.append(f"    the {nr['model']} model ({ENGINE_NAMES[nr['engine']]}), refitted from {nr['from_effect']}'s "
                          f"estimate, found a better optimum (log L {nr['loglik_before']:.1f} -> {nr['loglik_after']:.1f}, "
                          f"RMSE {nr['rmse_before']:.4f} -> {nr['rmse_after']:.4f} m/s): the tests below are against it"
                          + (f"; refitted from it, better: {', '.join(nr['alternatives_improved'])}"
                             if nr.get("alternatives_improved") else ""))
-        if rnd.get("quiet"):
+        if rnd.quiet:
             lines += ["    the residuals look like noise and no candidate's screen points at an effect: no refit", ""]
             continue
-        if rnd.get("adequate"):
+        if rnd.adequate:
             lines.append(f"    away from contact events the model fits to within "
                          f"{diag.decision.get('adequate_ratio', 1.3):g}x of the noise floor (RMSE "
-                         f"{rnd['calm_rmse']:.4f} m/s on {100 * rnd['calm_fraction']:.0f}% of the samples): "
-                         + ("no refit" if not rnd["refits"] else "no effect is needed"))
-            if not rnd["refits"]:
+                         f"{rnd.calm_rmse:.4f} m/s on {100 * rnd.calm_fraction:.0f}% of the samples): "
+                         + ("no refit" if not rnd.refits else "no effect is needed"))
+            if not rnd.refits:
                 lines.append("")
                 continue
         lines.append(f"    {'refit: effect':<26}{'LR':>9}{'p':>10}{'RMSE':>8}{'drop':>7}   estimate [90%]")
-        for x in rnd["refits"]:
+        for x in rnd.refits:
             est = "; ".join(f"{k} {v['mean']:.3g} [{v['interval90'][0]:.3g}, {v['interval90'][1]:.3g}]"
                             if v.get("interval90") else f"{k} {v['mean']:.3g} (no gain)"
                             for k, v in x["parameters"].items()) or "-"
@@ -122,8 +122,8 @@ def summary_text(diag, videos: list[Path]) -> str:
             mark += f"  ({ENGINE_NAMES[x['engine']]})" if "engine" in x else ""
             lines.append(f"    {x['effect']:<26}{x['lr_scaled']:>9.1f}{x['p_value']:>10.2g}{x['rmse_after']:>8.3f}"
                          f"{100 * x['rmse_drop']:>6.0f}%   {est}{mark}")
-        if rnd.get("indistinguishable"):
-            lines.append("    " + rnd["indistinguishable"]["message"])
+        if rnd.indistinguishable:
+            lines.append("    " + rnd.indistinguishable["message"])
         lines.append("")
     lines.append("  " + d["message"])
     for msg in d["indistinguishable"]:

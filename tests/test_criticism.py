@@ -398,14 +398,15 @@ def test_base_loglik_by_engine():
     from types import SimpleNamespace
 
     from galileo_jax.criticism.diagnosis import base_loglik_by_engine
+    from galileo_jax.criticism.models import Round
 
     base = SimpleNamespace(name="base", loglik=-245.7, union=SimpleNamespace(engine="mujoco"))
     transfers = [{"model": "base", "engine": "mjx", "loglik": -2385.2}]
     nulls = [{"model": "base", "engine": "mjx", "loglik_after": -254.8},
              {"model": "base", "engine": "mujoco", "loglik_after": -245.7}]
-    diag = SimpleNamespace(fits=[base], rounds=[{"transfers": transfers, "null_refit": nulls}])
+    diag = SimpleNamespace(fits=[base], rounds=[Round(1, "base", 0.05, transfers=transfers, null_refit=nulls)])
     assert base_loglik_by_engine(diag) == {"mujoco": -245.7, "mjx": -254.8}
-    diag.rounds[0]["null_refit"] = []
+    diag.rounds[0].null_refit = []
     assert base_loglik_by_engine(diag) == {"mujoco": -245.7, "mjx": -2385.2}
     assert base_loglik_by_engine(SimpleNamespace(fits=[base], rounds=[])) == {"mujoco": -245.7}
 

@@ -261,13 +261,13 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
     if jax.default_backend() == "cpu":  # each model on fit's engine; the base refitted on MJX for the force law
         rnd = diag.rounds[0]
         assert diag.fits[0].union.engine == "mujoco" and diag.final.union.engine == "mjx"
-        assert rnd["engines"] == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
-        assert [t["engine"] for t in rnd["transfers"]] == ["mjx"]
-        assert {x["effect"]: x["engine"] for x in rnd["refits"]} == rnd["engines"]
+        assert rnd.engines == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
+        assert [t["engine"] for t in rnd.transfers] == ["mjx"]
+        assert {x["effect"]: x["engine"] for x in rnd.refits} == rnd.engines
         # each model's log-likelihood gain is read against the base model on its own engine
         ref = base_loglik_by_engine(diag)
         assert set(ref) == {"mujoco", "mjx"}
-        for x in rnd["refits"]:  # the named model's test was before its polish (a second search)
+        for x in rnd.refits:  # the named model's test was before its polish (a second search)
             fit = diag.fits[x["fit_index"]]
             tested = fit.polish["loglik_lm"] if getattr(fit, "polish", None) else fit.loglik
             assert tested - ref[x["engine"]] == pytest.approx(x["delta_loglik"])
@@ -549,11 +549,11 @@ def test_a_stuck_base_fit_is_fitted_again_before_effects_are_screened(monkeypatc
     monkeypatch.setattr(D, "fit_model", first_one_stuck)
     diag = D.diagnose(scene, obs, settings)
     assert calls[:2] == [None, 2 * settings.base_starts]
-    assert diag.decision["missing_effects"] == [] and diag.rounds[-1]["adequate"], diag.decision["message"]
-    assert not diag.rounds[-1]["refits"] and "round1_refits_s" not in diag.timings
+    assert diag.decision["missing_effects"] == [] and diag.rounds[-1].adequate, diag.decision["message"]
+    assert not diag.rounds[-1].refits and "round1_refits_s" not in diag.timings
     calls.clear()
     plain = D.diagnose(scene, obs, dataclasses.replace(settings, base_retry=False))
-    assert 2 * settings.base_starts not in calls[:2] and plain.rounds[0]["refits"]  # the candidates were refitted
+    assert 2 * settings.base_starts not in calls[:2] and plain.rounds[0].refits  # the candidates were refitted
 
 
 def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
@@ -563,11 +563,12 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     from types import SimpleNamespace
 
     from galileo_jax.criticism.diagnosis import _decision
+    from galileo_jax.criticism.models import Round
 
     def fits(rmse):
         return [SimpleNamespace(name="base", rmse=rmse, criticism={"verdict": "fails on the ramp"})]
 
-    rounds = [{"refits": [{"effect": "quadratic_drag", "p_value": 1e-35, "rmse_drop": 0.01}], "adequate": False}]
+    rounds = [Round(1, "base", 0.008, refits=[{"effect": "quadratic_drag", "p_value": 1e-35, "rmse_drop": 0.01}])]
     d = _decision(fits(0.024), rounds, [], 0, 0.004, 0.008, 1.3)
     assert d["unexplained_misfit"] and d["missing_effects"] == []
     assert d["message"].startswith("No candidate effect explains the misfit: the model misfits at 6.0x the noise floor")
@@ -583,7 +584,7 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     # the candidate passed its test (p 1e-35): what rules it out is its small gain, not chance
     assert "by enough to count" in d["message"] and "beyond chance" not in d["message"], d["message"]
     assert "under the 10% that counts" in d["message"], d["message"]
-    rounds_chance = [{"refits": [{"effect": "quadratic_drag", "p_value": 0.2, "rmse_drop": 0.01}], "adequate": False}]
+    rounds_chance = [Round(1, "base", 0.008, refits=[{"effect": "quadratic_drag", "p_value": 0.2, "rmse_drop": 0.01}])]
     assert "beyond chance" in _decision(noisy, rounds_chance, [], 0, 0.004, 0.008, 1.3)["message"]
 
 
@@ -595,7 +596,7 @@ def test_no_refit_when_nothing_points_at_an_effect():
     from types import SimpleNamespace
 
     from galileo_jax.criticism.diagnosis import _decision, DiagnoseSettings
-
+    from galileo_jax.criticism.models import Round
     from galileo_jax.criticism.nested import quiet
 
     settings = DiagnoseSettings()
@@ -604,7 +605,7 @@ def test_no_refit_when_nothing_points_at_an_effect():
               {"effect": "quadratic_drag", "p_value": 0.27, "grid_gain": -14.6}]
     plain = [SimpleNamespace(structural=False)]
     assert quiet(noisy, screen, plain, settings, 0.0037)
-    d = _decision([noisy], [{"refits": [], "quiet": True, "screen": screen}], [], 0, 0.0037, 0.008, 1.3)
+    d = _decision([noisy], [Round(1, "base", 0.008, quiet=True, screen=screen)], [], 0, 0.0037, 0.008, 1.3)
     assert d["missing_effects"] == [] and not d["unexplained_misfit"]
     assert d["message"].startswith("No missing effect: the residuals look like noise (2.2x the noise floor")
     assert "smallest p = 0.27, largest profile gain -14.6 nats" in d["message"]

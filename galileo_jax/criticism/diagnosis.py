@@ -122,6 +122,7 @@ in :mod:`galileo_jax.effects`, :mod:`galileo_jax.inference` and :mod:`galileo_ja
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -131,6 +132,7 @@ import jax
 import numpy as np
 
 from galileo_jax.criticism.models import (
+    Round,
     CALIBRATION_NUISANCES,
     ENGINE_NAMES,
     ModelFit,
@@ -178,7 +180,8 @@ class Diagnosis:
         scenes, observations: per video.
         noise_floor: RMSE (m/s) a perfect model would reach on all videos together.
         fits: every fitted model, the base first.
-        rounds: per round the screen, the refits with their tests, the winner.
+        rounds: per round (:class:`~galileo_jax.criticism.models.Round`) the screen, the refits with
+            their tests, the winner.
         decision: the answer (:func:`_decision`).
         timings: seconds per stage.
     """
@@ -187,7 +190,7 @@ class Diagnosis:
     observations: list[Observation]
     noise_floor: float
     fits: list[ModelFit]
-    rounds: list[dict]
+    rounds: list[Round]
     decision: dict
     timings: dict
 
@@ -218,7 +221,7 @@ class Diagnosis:
 
     def as_dict(self) -> dict:
         return {"scenes": [s.name for s in self.scenes], "noise_floor_m_per_s": self.noise_floor,
-                "models": [f.as_dict() for f in self.fits], "rounds": self.rounds, "decision": self.decision,
+                "models": [f.as_dict() for f in self.fits], "rounds": [r.as_dict() for r in self.rounds], "decision": self.decision,
                 "calibration": self.calibration(), "timings_s": self.timings}
 
 
@@ -286,21 +289,19 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         if not candidates:
             break
         t = time.perf_counter()
-        rnd_info = {"round": rnd + 1, "base": current.name, "threshold_p": threshold, "screen": [], "engines": {},
-                    "transfers": [], "refits": [], "winner": None, "indistinguishable": None, "adequate": False,
-                    "null_refit": []}
+        rnd_info = Round(round=rnd + 1, base=current.name, threshold_p=threshold)
         done = adequate_round(rnd_info, current, observations, masks, floor, settings)
         if done is not None:  # nothing left to explain; the screen is reported where it costs no refit
             say("screening the candidate effects")
             own = {e.name for e in current.union.effects}
-            done["screen"] = screen_candidates(current.union, current, [
+            done.screen = screen_candidates(current.union, current, [
                 e for e in candidates if e.params and e.name in own
                 and model_engine(scenes, tuple(added) + (e.name,), settings) == current.union.engine], settings)
             timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
             rounds.append(done)
             break
         home = candidate_unions(ws, scenes, candidates, added, settings)
-        rnd_info["engines"] = {n: u.engine for n, u in home.items()}
+        rnd_info.engines = {n: u.engine for n, u in home.items()}
         # the current model in every union with parametric candidates (refitted there, from its
         # estimate, when it lives in another: another engine, or without these effects)
         currents = {id(current.union): current}
@@ -312,7 +313,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
                                 init=u.theta_from(current.union, np.asarray(current.result.theta)), starts=0,
                                 search=False)
                 currents[id(u)] = fit
-                rnd_info["transfers"].append({"model": current.name, "engine": u.engine, "loglik": fit.loglik,
+                rnd_info.transfers.append({"model": current.name, "engine": u.engine, "loglik": fit.loglik,
                                               "rmse": fit.rmse, "from_engine": current.union.engine,
                                               "rmse_before": current.rmse})
             return currents[id(u)]
@@ -326,12 +327,12 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         for u, group in params_by_union.values():
             screen += screen_candidates(u, current_in(u), group, settings)
         screen.sort(key=lambda r: -r["statistic"])
-        rnd_info["screen"] = screen
+        rnd_info.screen = screen
         order = list(dict.fromkeys(row["effect"] for row in screen))
         chosen = order[:settings.refits] + [e.name for e in candidates if e.structural]
         timings[f"round{rnd + 1}_screen_s"] = time.perf_counter() - t
         if quiet(current, screen, candidates, settings, floor):  # step 4b: nothing points at an effect
-            rnd_info["quiet"] = True
+            rnd_info.quiet = True
             rounds.append(rnd_info)
             break
 
@@ -356,14 +357,14 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         improved = {}  # id(union) -> its null_refit record
         for u, _ in params_by_union.values():  # each union's null at its maximum (refit_null)
             better = refit_null(u, currents[id(u)], tests, fits, added, settings,
-                                jax.random.fold_in(key, 100 * rnd + 99 + len(rnd_info["null_refit"])))
+                                jax.random.fold_in(key, 100 * rnd + 99 + len(rnd_info.null_refit)))
             if better is None:
                 continue
             old = currents[id(u)]
             improved[id(u)] = {"from_effect": better[1], "engine": u.engine, "model": old.name,
                                "loglik_before": old.loglik, "loglik_after": better[0].loglik,
                                "rmse_before": old.rmse, "rmse_after": better[0].rmse, "alternatives_improved": []}
-            rnd_info["null_refit"].append(improved[id(u)])
+            rnd_info.null_refit.append(improved[id(u)])
             say(f"the {old.name} model ({ENGINE_NAMES[u.engine]}) improved from {better[1]}'s estimate (log L "
                 f"{old.loglik:.1f} -> {better[0].loglik:.1f}); re-testing")
             currents[id(u)] = better[0]
@@ -383,12 +384,12 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
                                  x["fit_index"], threshold, settings) for x in tests]
         timings[f"round{rnd + 1}_null_refits_s"] = time.perf_counter() - t
         if improved:
-            done = adequate_round({**rnd_info, "refits": tests}, current, observations, masks, floor, settings)
+            done = adequate_round(dataclasses.replace(rnd_info, refits=tests), current, observations, masks, floor, settings)
             if done is not None and not clear_gain(tests, current, settings):
                 rounds.append(done)
                 break
         supported = sorted([x for x in tests if x["supported"]], key=lambda x: -x["delta_loglik"])
-        rnd_info["refits"] = tests
+        rnd_info.refits = tests
         if not supported:
             rounds.append(rnd_info)
             break
@@ -398,11 +399,11 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
             names = [win["effect"]] + [x["effect"] for x in tied]
             how = ", ".join(f"{available_effects()[n].evidence} ({n})" for n in names)
             rmses = " / ".join("%.4f" % x["rmse_after"] for x in [win] + tied)
-            rnd_info["indistinguishable"] = {
+            rnd_info.indistinguishable = {
                 "effects": names, "vuong_p": [x["vuong_p_vs_winner"] for x in tied],
                 "message": (f"{' and '.join(names)} explain this video about equally well (RMSE {rmses} m/s); "
                             f"to separate them measure {how}")}
-        rnd_info["winner"] = win["effect"]
+        rnd_info.winner = win["effect"]
         rounds.append(rnd_info)
         added.append(win["effect"])
         say(f"polishing the fit with {win['effect']}")
@@ -429,11 +430,11 @@ def base_loglik_by_engine(diag: "Diagnosis") -> dict[str, float]:
     differ at impacts), so a model's gain is read against the base on its own engine."""
     base = diag.fits[0]
     out = {base.union.engine: float(base.loglik)}
-    first = diag.rounds[0] if diag.rounds else {}
-    for tr in first.get("transfers", []):
+    first = diag.rounds[0] if diag.rounds else None
+    for tr in first.transfers if first else []:
         if tr["model"] == base.name:
             out.setdefault(tr["engine"], float(tr["loglik"]))
-    for nr in first.get("null_refit", []):
+    for nr in first.null_refit if first else []:
         if nr["model"] == base.name and nr["engine"] != base.union.engine:
             out[nr["engine"]] = float(nr["loglik_after"])
     return out
@@ -518,22 +519,22 @@ def angle_alternative(fit: "ModelFit", scene: Scene, tolerance_deg: float) -> di
 def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio, min_rmse_drop=0.10) -> dict:
     base, final = fits[0], fits[final_index]
     unexplained = False
-    if not added and rounds and rounds[-1].get("adequate"):
+    if not added and rounds and rounds[-1].adequate:
         r = rounds[-1]
         message = (f"No missing effect: away from contact events the model already fits to within {adequate_ratio:g}x "
-                   f"of the noise floor (RMSE {r['calm_rmse']:.4f} m/s on {100 * r['calm_fraction']:.0f}% of the "
+                   f"of the noise floor (RMSE {r.calm_rmse:.4f} m/s on {100 * r.calm_fraction:.0f}% of the "
                    f"samples; {base.rmse:.4f} m/s on all, {base.rmse / floor:.1f}x; floor {floor:.4f} m/s); there is "
                    "nothing left for an effect to explain.")
-    elif not added and rounds and rounds[-1].get("quiet"):
-        screen = rounds[-1]["screen"]
+    elif not added and rounds and rounds[-1].quiet:
+        screen = rounds[-1].screen
         message = (f"No missing effect: the residuals look like noise ({base.rmse / floor:.1f}x the noise floor, RMSE "
                    f"{base.rmse:.4f} m/s) and no candidate's screen points at an effect (smallest p = "
                    f"{min(r['p_value'] for r in screen):.2g}, largest profile gain "
                    f"{max(r['grid_gain'] for r in screen):.1f} nats); no refit was needed.")
     elif not added:
         best = None
-        if rounds and rounds[0]["refits"]:
-            best = min(rounds[0]["refits"], key=lambda x: x["p_value"])
+        if rounds and rounds[0].refits:
+            best = min(rounds[0].refits, key=lambda x: x["p_value"])
         passed = best is not None and best["p_value"] <= threshold
         if passed:  # a significant but small gain: chance is not what rules it out
             why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} passes its test (threshold "
@@ -564,7 +565,7 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
     else:
         message = (f"Missing effect: {' then '.join(added)}. RMSE {base.rmse:.3f} -> {final.rmse:.3f} m/s "
                    f"({base.rmse / max(final.rmse, 1e-12):.1f}x lower; noise floor {floor:.3f} m/s).")
-    indist = [r["indistinguishable"]["message"] for r in rounds if r.get("indistinguishable")]
+    indist = [r.indistinguishable["message"] for r in rounds if r.indistinguishable]
     return {"missing_effects": added, "final_model": final.name, "final_index": final_index,
             "message": message, "unexplained_misfit": unexplained, "indistinguishable": indist,
             "rmse_base": base.rmse, "rmse_final": final.rmse, "noise_floor": floor,

@@ -51,6 +51,56 @@ class VideoFit:
 
 
 @dataclass
+class Round:
+    """What one round of :func:`~galileo_jax.criticism.diagnosis.diagnose` did and found
+    (``Diagnosis.rounds``; JSON through :meth:`as_dict`).
+
+    Attributes:
+        round: 1, 2, ... (one effect is added per round).
+        base: name of the model the round tests effects against.
+        threshold_p: the p-value an effect must stay below (alpha / candidates).
+        screen: the screen's rows (:func:`~galileo_jax.criticism.screening.screen_candidates`),
+            largest statistic first.
+        engines: {effect: engine its model was fitted on}.
+        transfers: the current model refitted on another engine (one dict each).
+        refits: each refitted effect's test (:func:`~galileo_jax.criticism.nested.test_effect`).
+        winner: the effect named in this round, or None.
+        indistinguishable: {"effects", "vuong_p", "message"} when supported effects cannot be
+            told apart, else None.
+        adequate: the current model was adequate (step 3): nothing left to explain.
+        null_refit: the current model refitted from an alternative's estimate (one dict per union).
+        quiet: the screen pointed at nothing (step 4b) and no refit ran.
+        calm_rmse, calm_fraction: with ``adequate``, the RMSE (m/s) away from contact events and
+            the share of samples it covers.
+    """
+
+    round: int
+    base: str
+    threshold_p: float
+    screen: list = field(default_factory=list)
+    engines: dict = field(default_factory=dict)
+    transfers: list = field(default_factory=list)
+    refits: list = field(default_factory=list)
+    winner: str | None = None
+    indistinguishable: dict | None = None
+    adequate: bool = False
+    null_refit: list = field(default_factory=list)
+    quiet: bool = False
+    calm_rmse: float | None = None
+    calm_fraction: float | None = None
+
+    def as_dict(self) -> dict:
+        """The JSON record (``quiet`` and the calm RMSE only where they apply)."""
+        out = {k: getattr(self, k) for k in ("round", "base", "threshold_p", "screen", "engines", "transfers",
+                                              "refits", "winner", "indistinguishable", "adequate", "null_refit")}
+        if self.quiet:
+            out["quiet"] = True
+        if self.calm_rmse is not None:
+            out.update(calm_rmse=self.calm_rmse, calm_fraction=self.calm_fraction)
+        return out
+
+
+@dataclass
 class ModelFit:
     """One fitted model (base or base + effects) and how well it fits.
 

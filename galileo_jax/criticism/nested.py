@@ -7,10 +7,12 @@ negative: :func:`nested_floor`), the null refitted at its maximum (:func:`refit_
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from galileo_jax.criticism import residuals as criticism
-from galileo_jax.criticism.models import ModelFit, Union, base_name, fit_model
+from galileo_jax.criticism.models import ModelFit, Round, Union, base_name, fit_model
 from galileo_jax.criticism.screening import refit_init
 from galileo_jax.criticism.settings import DiagnoseSettings
 from galileo_jax.effects import Effect
@@ -53,14 +55,14 @@ def adequate(fit: ModelFit, rmse_calm: float, floor: float, settings: DiagnoseSe
 
 
 
-def adequate_round(rnd_info: dict, current: ModelFit, observations, masks, floor: float,
-                    settings: DiagnoseSettings) -> dict | None:
-    """The round record ``rnd_info`` marked adequate, with the event-free RMSE and the fraction
-    of samples it covers, when ``current`` passes :func:`adequate`; else None."""
+def adequate_round(rnd: Round, current: ModelFit, observations, masks, floor: float,
+                   settings: DiagnoseSettings) -> Round | None:
+    """A copy of the round record ``rnd`` marked adequate, with the event-free RMSE and the
+    fraction of samples it covers, when ``current`` passes :func:`adequate`; else None."""
     rmse_calm, fraction = calm_rmse(current, observations, masks)
     if not adequate(current, rmse_calm, floor, settings):
         return None
-    return {**rnd_info, "adequate": True, "calm_rmse": rmse_calm, "calm_fraction": fraction}
+    return dataclasses.replace(rnd, adequate=True, calm_rmse=rmse_calm, calm_fraction=fraction)
 
 
 
