@@ -7,7 +7,6 @@ Scripts run as ``python benchmarks/NAME.py``, so this folder is on ``sys.path`` 
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import subprocess
@@ -56,8 +55,3 @@ def write_atomic(path: Path, text: str) -> None:
 
     with atomic_path(Path(path)) as tmp:
         tmp.write_text(text)
-
-
-def write_json_atomic(path: Path, doc) -> None:
-    """Write ``doc`` as indented JSON to ``path`` atomically."""
-    write_atomic(path, json.dumps(doc, indent=1))

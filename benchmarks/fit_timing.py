@@ -17,7 +17,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from _common import machine_line, write_atomic, write_json_atomic  # noqa: E402
+from _common import machine_line, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +47,9 @@ def main() -> None:
     machine = machine_line()
     res = ROOT / "benchmarks" / "results"
     res.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(res / "fit_timing.json", {"machine": machine, "video": args.video, "rows": rows})
+    from galileo_jax.report.results import write_json
+
+    write_json(res / "fit_timing.json", {"machine": machine, "video": args.video, "rows": rows})
     lines = [f"# fit wall time on {args.video}", "", f"Machine: {machine}", "",
              "| method | cold (s) | warm cache (s) |", "|---|---|---|"]
     lines += [f"| {r['method']} | {r['cold_s']} | {r['warm_s']} |" for r in rows]

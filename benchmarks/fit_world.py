@@ -105,7 +105,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
-    from _common import machine_line, write_atomic, write_json_atomic
+    from _common import machine_line, write_atomic
+    from galileo_jax.report.results import write_json
 
     args.work.mkdir(parents=True, exist_ok=True)
     condition = Condition(args.look, "perspective", "960x540", False)
@@ -144,7 +145,7 @@ def main(argv=None) -> int:
            "videos": len(records), "fitted": len(ok), "summary": summary, "records": records}
     name = "fit_world" + ("" if args.look == "plain" else f"_{args.look}") + (
         "" if args.config is None else f"_{args.config.stem}")
-    write_json_atomic(RESULTS / f"{name}.json", doc)
+    write_json(RESULTS / f"{name}.json", doc)
     lines = [f"# Fit accuracy on {args.look} objects seen through a perspective camera", "",
              f"machine: {doc['machine']}", "", f"command: `{doc['command']}`", "",
              " ".join(__doc__.split("\n\n")[1].split()), "", " ".join(__doc__.split("\n\n")[2].split()), "",

@@ -155,7 +155,8 @@ def main(argv=None) -> int:
     import jax
 
     from galileo_jax.jaxcache import enable_compilation_cache
-    from _common import machine_line, write_atomic, write_json_atomic
+    from _common import machine_line, write_atomic
+    from galileo_jax.report.results import write_json
 
     jax.config.update("jax_enable_x64", True)
     enable_compilation_cache()
@@ -169,7 +170,7 @@ def main(argv=None) -> int:
                   f"{r['foreign_fitted']:.4f} (LR {r['lr_control']:.1f}) ({r['seconds']:.0f} s)", flush=True)
     doc = {"machine": machine_line(), "command": "python benchmarks/foreign_physics.py " + " ".join(argv or sys.argv[1:]),
            "floor_m_per_s": FLOOR, "records": records}
-    write_json_atomic(RESULTS / "foreign_physics.json", doc)
+    write_json(RESULTS / "foreign_physics.json", doc)
     rows = ["| effect | draw | hidden value | fitted | ours + effect | foreign + effect | + effect fitted | LR "
             "| foreign | + effect fitted | control LR |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in records:

@@ -36,12 +36,11 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
-from _common import machine_line  # noqa: E402
+from _common import machine_line, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from diagnose_calibration import write_atomic  # noqa: E402
 
 NAMES = ("k1", "k2", "phi")
 VIDEOS = ("samplers/ramp_20/video_1.mp4", "samplers/ramp_20/video_4.mp4", "cnn_videos/video_0.mp4",

@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import machine_line, write_atomic, write_json_atomic  # noqa: E402
+from _common import machine_line, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -117,7 +117,9 @@ def main() -> None:
     machine = machine_line()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out.with_suffix(".json"), {"machine": machine, "one_process": one["rows"], "fresh_processes": fresh})
+    from galileo_jax.report.results import write_json
+
+    write_json(out.with_suffix(".json"), {"machine": machine, "one_process": one["rows"], "fresh_processes": fresh})
     cols = ["problem_s", "log_density_first_s", "log_density_again_s", "fit_grad_s", "fit_grad_push_s"]
     head = ["| scene | " + " | ".join(c.removesuffix("_s").replace("_", " ") + " (s)" for c in cols) + " |",
             "|---|" + "---|" * len(cols)]

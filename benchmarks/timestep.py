@@ -15,7 +15,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import machine_line, write_atomic, write_json_atomic  # noqa: E402
+from _common import machine_line, write_atomic  # noqa: E402
+from galileo_jax.report.results import write_json  # noqa: E402
 
 from galileo_jax.physics.simulate import PhysParams, make_simulator, steps_needed, velocity_profile
 from galileo_jax.scene import load_scene
@@ -51,7 +52,7 @@ def main() -> None:
     machine = machine_line()
     res = ROOT / "benchmarks" / "results"
     res.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(res / "timestep.json", {"machine": machine, "rows": rows})
+    write_json(res / "timestep.json", {"machine": machine, "rows": rows})
     lines = ["# Physics timestep vs velocity-profile error (20 deg scene, 30 fps, 2.5 s, 4 parameter sets)", "",
              f"Machine: {machine}. Reference: 64 steps per frame (dt = 1/1920 s).", "",
              "| steps/frame | dt (s) | RMS error (m/s) | max error (m/s) | s per rollout (batch 4) |", "|---|---|---|---|---|"]

@@ -225,7 +225,6 @@ class Diagnosis:
                 "calibration": self.calibration(), "timings_s": self.timings}
 
 
-
 def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observation],
              settings: DiagnoseSettings = DiagnoseSettings(), *, seed: int = 0, progress=None) -> Diagnosis:
     """Run the criticism loop on one observation, or on several videos of one setup (module docstring).
@@ -422,7 +421,6 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
     return Diagnosis(scenes, observations, floor, fits, rounds, decision, timings)
 
 
-
 def base_loglik_by_engine(diag: "Diagnosis") -> dict[str, float]:
     """{engine: log-likelihood (nats) of the base model on that engine}: the base fit on its own
     engine; on another, the base model refitted there in the first round (after its null refit,
@@ -438,7 +436,6 @@ def base_loglik_by_engine(diag: "Diagnosis") -> dict[str, float]:
         if nr["model"] == base.name and nr["engine"] != base.union.engine:
             out[nr["engine"]] = float(nr["loglik_after"])
     return out
-
 
 
 def candidate_unions(ws: Workspace, scenes, candidates, added, settings: DiagnoseSettings) -> dict[str, Union]:
@@ -458,7 +455,6 @@ def candidate_unions(ws: Workspace, scenes, candidates, added, settings: Diagnos
         u = ws.union(engine, have + tuple(group))
         home.update({e.name: u for e in group})
     return home
-
 
 
 def equivalent_angle_error(angle: float, k: float, dk_ramp: float) -> float:
@@ -487,7 +483,6 @@ def equivalent_angle_error(angle: float, k: float, dk_ramp: float) -> float:
     return math.atan(k) + math.asin(rhs) - angle
 
 
-
 def angle_alternative(fit: "ModelFit", scene: Scene, tolerance_deg: float) -> dict | None:
     """For a fitted model with ``ramp_friction``: the ramp-angle error that would mimic its
     ``dk_ramp`` for object 1 (:func:`equivalent_angle_error`), and a sentence saying whether that
@@ -513,7 +508,6 @@ def angle_alternative(fit: "ModelFit", scene: Scene, tolerance_deg: float) -> di
                    "likelier cause; if the angle may be off by that much, measure it again.")
     return {"effect": "ramp_friction", "angle_error_deg": delta, "tolerance_deg": tolerance_deg,
             "within_tolerance": within, "message": message}
-
 
 
 def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio, min_rmse_drop=0.10) -> dict:

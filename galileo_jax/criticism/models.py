@@ -37,8 +37,8 @@ class VideoFit:
         residuals: (T * m,) standardised residuals at the used samples.
         rmse: RMSE of observed - simulated velocity over the fit window, all traces, m/s.
         criticism: :func:`galileo_jax.criticism.residuals.summarize` dict (phases, table, verdict).
-        test_residuals: (T * m,) residuals standardised in the test likelihood (module
-            docstring), trace-major over the used samples; None before it is set up.
+        test_residuals: (T * m,) residuals standardised in the test likelihood
+            (:mod:`galileo_jax.criticism.diagnosis`), trace-major over the used samples; None before it is set up.
     """
 
     simulated: np.ndarray
@@ -47,7 +47,6 @@ class VideoFit:
     rmse: float
     criticism: dict
     test_residuals: np.ndarray | None = None
-
 
 
 @dataclass
@@ -167,12 +166,10 @@ class ModelFit:
 CALIBRATION_NUISANCES = ("scale_error",)
 
 
-
 def pooled_rms(values: Sequence[float], weights: Sequence[float]) -> float:
     """sqrt(sum w v^2 / sum w): RMS values of several videos pooled by their sample counts."""
     v, w = np.asarray(values, np.float64), np.asarray(weights, np.float64)
     return float(np.sqrt(np.sum(w * v**2) / np.sum(w)))
-
 
 
 def with_calibration_nuisances(scene: Scene, settings: DiagnoseSettings) -> Scene:
@@ -182,7 +179,6 @@ def with_calibration_nuisances(scene: Scene, settings: DiagnoseSettings) -> Scen
         return scene
     return scene.model_copy(update={"camera": scene.camera.model_copy(
         update={"scale_tolerance": float(settings.scale_tolerance)})})
-
 
 
 def candidate_effects(scene: Scene, names=None, exclude=()) -> tuple[Effect, ...]:
@@ -197,7 +193,6 @@ def candidate_effects(scene: Scene, names=None, exclude=()) -> tuple[Effect, ...
 def base_name(name: str) -> str:
     """A joint coordinate's parameter name: ``"v0@2"`` -> ``"v0"``."""
     return name.split("@", 1)[0]
-
 
 
 class Union:
@@ -281,7 +276,6 @@ class Union:
         return np.asarray(out, np.float64)
 
 
-
 def model_engine(scenes, effects, settings: DiagnoseSettings) -> str:
     """The engine of a model with the scenes' own effects plus ``effects``: ``fit``'s rule
     (:func:`~galileo_jax.config.pick_engine`): MJX if any of them acts every physics step
@@ -292,7 +286,6 @@ def model_engine(scenes, effects, settings: DiagnoseSettings) -> str:
     return pick_engine(settings.engine, any(has_step_hooks(scene_effects(s, effects)) for s in scenes))
 
 
-
 def search_budget(union: Union, settings: DiagnoseSettings, generations: int) -> tuple[int, int]:
     """(points per generation, generations) of a CMA-ES search in ``union``: ``search_popsize``
     and ``generations`` on MJX; ``search_popsize_c`` and ``search_generations_c`` on the C engine
@@ -300,7 +293,6 @@ def search_budget(union: Union, settings: DiagnoseSettings, generations: int) ->
     if union.engine == "mujoco":
         return settings.search_popsize_c, (settings.search_generations_c if generations > 0 else 0)
     return settings.search_popsize, generations
-
 
 
 def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, init: np.ndarray | None = None,
@@ -334,12 +326,10 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
     return fit
 
 
-
 def search_restarts(union: Union, free_effects) -> int:
     """CMA-ES searches of a refit freeing ``free_effects``: the largest ``Effect.search_restarts`` among them (>= 1)."""
     by_name = {e.name: e for e in union.effects}
     return max([1] + [by_name[n].search_restarts for n in free_effects if n in by_name])
-
 
 
 def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettings, key, generations: int,
@@ -376,7 +366,6 @@ def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettin
     return res, search
 
 
-
 def polish(fit: ModelFit, settings: DiagnoseSettings, key) -> ModelFit:
     """The named model refitted once more: a second CMA-ES search of ``settings.winner_search``
     generations from its estimate, with half the refit's initial step, then LM; the better of the
@@ -395,7 +384,6 @@ def polish(fit: ModelFit, settings: DiagnoseSettings, key) -> ModelFit:
     return better
 
 
-
 def simulate_video(problem: Problem, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(poses, simulated profile (2n, N-1) in m/s) of one video at ``theta``: one whole-video
     rollout gives the poses, the profile and the residuals."""
@@ -404,13 +392,11 @@ def simulate_video(problem: Problem, theta: np.ndarray) -> tuple[np.ndarray, np.
     return poses, simulated.reshape(simulated.shape[0], -1).T
 
 
-
 def union_rmse(union: Union, theta: np.ndarray) -> float:
     """Profile RMSE (m/s) over every video's fit window at the union's ``theta``."""
     rmse = [criticism.profile_rmse(p.observation, simulate_video(p, union.theta_for(j, theta))[1])
             for j, p in enumerate(union.problems)]
     return pooled_rms(rmse, union.samples_used())
-
 
 
 def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSettings) -> ModelFit:
@@ -447,7 +433,6 @@ def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSett
     return ModelFit(name, free_effects, union, res, summary, float(res.loglik),
                     np.concatenate([v.residuals for v in videos]), pooled_rms([v.rmse for v in videos], n_used),
                     videos, crit, test)
-
 
 
 class Workspace:

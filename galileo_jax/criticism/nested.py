@@ -32,12 +32,10 @@ def event_sds(base: ModelFit, observations) -> list[np.ndarray]:
 GATE_JUMP = criticism.GATE_JUMP
 
 
-
 def calm_masks(base: ModelFit, observations) -> list[np.ndarray]:
     """Per video the (2n, N-1) bool mask of fitted samples away from contact events
     (:func:`galileo_jax.criticism.residuals.calm_mask` of ``base``'s simulated profile)."""
     return [criticism.calm_mask(o, v.simulated) for v, o in zip(base.videos, observations)]
-
 
 
 def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
@@ -47,12 +45,10 @@ def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
     return (float(np.sqrt(np.mean(d**2))) if d.size else fit.rmse), d.size / max(n, 1)
 
 
-
 def adequate(fit: ModelFit, rmse_calm: float, floor: float, settings: DiagnoseSettings) -> bool:
     """Step 3 of :mod:`galileo_jax.criticism.diagnosis`: RMSE away from contact events <= ``adequate_ratio`` x the
     noise floor and RMSE on all samples <= ``adequate_ratio_all`` x the floor."""
     return criticism.within_floor(rmse_calm, fit.rmse, floor, settings.adequate_ratio, settings.adequate_ratio_all)
-
 
 
 def adequate_round(rnd: Round, current: ModelFit, observations, masks, floor: float,
@@ -65,13 +61,11 @@ def adequate_round(rnd: Round, current: ModelFit, observations, masks, floor: fl
     return dataclasses.replace(rnd, adequate=True, calm_rmse=rmse_calm, calm_fraction=fraction)
 
 
-
 def clear_gain(tests: list[dict], current: ModelFit, settings: DiagnoseSettings) -> bool:
     """Whether some supported test's fit (``rmse_after``, m/s) is at least
     ``settings.min_rmse_drop`` below ``current``'s RMSE: a fit that an adequate-looking model
     must not wave through (step 5 of :mod:`galileo_jax.criticism.diagnosis`)."""
     return any(x["supported"] and x["rmse_after"] <= (1.0 - settings.min_rmse_drop) * current.rmse for x in tests)
-
 
 
 def quiet(current: ModelFit, screen: list[dict], candidates, settings: DiagnoseSettings, floor: float) -> bool:
@@ -86,7 +80,6 @@ def quiet(current: ModelFit, screen: list[dict], candidates, settings: DiagnoseS
         return False
     return (bool(current.criticism.get("looks_like_noise", False))
             and all(r["p_value"] > settings.quiet_p and r["grid_gain"] < settings.quiet_gain for r in screen))
-
 
 
 def refit_from_null(union: Union, null: ModelFit, effect: Effect, fits: list[ModelFit], fit_index: int,
@@ -108,7 +101,6 @@ def refit_from_null(union: Union, null: ModelFit, effect: Effect, fits: list[Mod
         fits[fit_index] = new
         return True
     return False
-
 
 
 def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_index: int, threshold: float,
@@ -136,7 +128,6 @@ def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_ind
     return test
 
 
-
 def refit_null(union: Union, current: ModelFit, tests: list[dict], fits: list[ModelFit], added, settings,
                key) -> tuple[ModelFit, str] | None:
     """Refit the current model from the best alternative's estimate, its effect held neutral.
@@ -159,7 +150,6 @@ def refit_null(union: Union, current: ModelFit, tests: list[dict], fits: list[Mo
     new = fit_model(union, tuple(added), settings, key, init=np.asarray(fits[best["fit_index"]].result.theta),
                     starts=0)
     return (new, best["effect"]) if new.loglik > current.loglik + 1e-6 else None
-
 
 
 def nested_floor(current: ModelFit, alt: ModelFit, effect: Effect, why: str | None = None) -> ModelFit:
@@ -185,7 +175,6 @@ def nested_floor(current: ModelFit, alt: ModelFit, effect: Effect, why: str | No
                     current.test_residuals)
 
 
-
 def indistinguishable(win: dict, other: dict, fits: list[ModelFit], union: Union, settings: DiagnoseSettings) -> bool:
     """Whether the supported effect ``other`` cannot be told apart from the winner ``win``:
     Vuong's test between the two (on test residuals scaled by the two models' mean noise scale
@@ -202,11 +191,9 @@ def indistinguishable(win: dict, other: dict, fits: list[ModelFit], union: Union
     return bool(p > settings.indistinct_p or win["rmse_after"] > (1.0 - settings.min_rmse_drop) * other["rmse_after"])
 
 
-
 def test_residuals(fit: ModelFit) -> np.ndarray:
     """The residuals the tests use: the test likelihood's, or the fit's before it is set up."""
     return fit.residuals if fit.test_residuals is None else fit.test_residuals
-
 
 
 def compare(current: ModelFit, alt: ModelFit, effect: Effect, n_coords: int) -> dict:
