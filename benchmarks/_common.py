@@ -1,5 +1,6 @@
 """What every benchmark script shares: where results go, the machine line and code version each
-table records, and atomic writes (several runs may write the same table).
+table records, atomic writes (several runs may write the same table), and whether a video was
+already rendered (runs resume).
 
 Scripts run as ``python benchmarks/NAME.py``, so this folder is on ``sys.path`` and they
 ``from _common import ...``.
@@ -47,6 +48,13 @@ def code_version(*paths: str) -> str:
     except (OSError, subprocess.SubprocessError):
         out = ""
     return out or "unknown"
+
+
+def rendered(video: Path, sidecars: tuple[str, ...] = (".truth.json",)) -> bool:
+    """True when ``video`` and its ``sidecars`` (suffixes replacing ``.mp4``: the truth JSON, the
+    scene file) all exist, i.e. an earlier run rendered it (the renderer writes each file
+    atomically, so a render stopped half-way does not count)."""
+    return video.exists() and all(video.with_suffix(s).exists() for s in sidecars)
 
 
 def write_atomic(path: Path, text: str) -> None:

@@ -33,7 +33,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
-from _common import machine_line  # noqa: E402
+from _common import machine_line, rendered  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -58,7 +58,7 @@ def render(i: int, work: Path, seed: int) -> Path:
     from galileo_jax.scene import load_scene
 
     video = work / f"video_{i}.mp4"
-    if video.exists() and video.with_suffix(".truth.json").exists():
+    if rendered(video):
         return video
     render_informative(load_scene(ROOT / "scenes" / "ramp_20.yaml"), video, np.random.default_rng(seed * 1000 + i),
                        seed + i)

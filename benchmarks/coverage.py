@@ -66,7 +66,9 @@ def render(j: int, work: Path, seed: int) -> Path:
         render_world(video, Condition("plain", "perspective", "960x540", blur=(j // 3) % 2 == 1),
                      hand=(j // 3) % 2 == 0, seed=seed * 10_000 + j)
         return video
-    if not (video.exists() and video.with_suffix(".truth.json").exists()):
+    from _common import rendered
+
+    if not rendered(video):
         from cnn_videos import render_informative
 
         stream = np.random.SeedSequence([seed, j])

@@ -52,7 +52,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
-from _common import code_version, machine_line, write_atomic  # noqa: E402
+from _common import code_version, machine_line, rendered, write_atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Video timing of every rendered video (frames per second, seconds).
@@ -78,7 +78,7 @@ def render_one(scene_path: Path, effect: str, i: int, work: Path, seed: int) -> 
     from galileo_jax.synth import draw_informative_params, render_video
 
     video = work / f"{effect}_{i}.mp4"
-    if video.exists() and video.with_suffix(".truth.json").exists() and video.with_suffix(".yaml").exists():
+    if rendered(video, (".truth.json", ".yaml")):
         return video, float("nan")
     scene = load_scene(scene_path)
     rng = np.random.default_rng(seed * 1000 + i + 17 * len(effect))
@@ -152,7 +152,7 @@ def render_foreign(scene_path: Path, effect: str, i: int, work: Path, seed: int)
     from galileo_jax.synth import render_video
 
     video = work / f"{effect}_{i}.mp4"
-    if video.exists() and video.with_suffix(".truth.json").exists() and video.with_suffix(".yaml").exists():
+    if rendered(video, (".truth.json", ".yaml")):
         return video, float("nan")
     scene = load_scene(scene_path)
     rng, effects, _, params, world = foreign_draw(scene, effect, i, seed)
@@ -227,7 +227,7 @@ def attainable_rmse(scene, obs, params: dict, effects, release_time: float) -> f
     (:func:`galileo_jax.criticism.diagnosis.model_engine`): the best any fit of the right model can do."""
     from galileo_jax.criticism.diagnosis import DiagnoseSettings
     from galileo_jax.criticism.models import model_engine
-    from galileo_jax.criticism.residuals import profile_rmse
+    from galileo_jax.criticism.adequacy import profile_rmse
     from galileo_jax.inference.problem import Problem
 
     problem = Problem(scene, obs, effects=effects, engine=model_engine([scene], effects, DiagnoseSettings()))

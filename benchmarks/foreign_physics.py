@@ -77,7 +77,7 @@ def fitted_rmse(scene, obs, effects=(), starts=()) -> tuple[float, dict]:
     from the truth even on our own physics)."""
     import jax
 
-    from galileo_jax.criticism.residuals import profile_rmse
+    from galileo_jax.criticism.adequacy import profile_rmse
     from galileo_jax.criticism.diagnosis import DiagnoseSettings
     from galileo_jax.criticism.models import model_engine
     from galileo_jax.effects import get_effect

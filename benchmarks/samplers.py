@@ -65,7 +65,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import cnn_videos  # noqa: E402  (sets MUJOCO_GL=egl unless set; ROOT, RESULTS, NAMES)
 import numpy as np  # noqa: E402
-from _common import machine_line  # noqa: E402
+from _common import machine_line, rendered  # noqa: E402
 
 ROOT, RESULTS, NAMES = cnn_videos.ROOT, cnn_videos.RESULTS, cnn_videos.NAMES
 SCENES = ("ramp_10", "ramp_20")
@@ -131,7 +131,7 @@ def scene_video(scene_name: str, i: int, work: Path, seed: int) -> Path:
     from galileo_jax.scene import load_scene
 
     path = work / scene_name / f"video_{i}.mp4"
-    if path.exists() and path.with_suffix(".truth.json").exists():
+    if rendered(path):
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
     stream = np.random.SeedSequence([seed, SCENES.index(scene_name), i])

@@ -29,6 +29,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
+from _common import rendered  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 SETTINGS = {"10": ROOT / "scenes" / "ramp_10.yaml", "20": ROOT / "scenes" / "ramp_20.yaml"}
@@ -46,7 +48,7 @@ def render_dataset(dataset: Path, n: int, seed: int) -> list[Path]:
         for i in range(n):
             video = dataset / "scenarios" / "ramp" / setting / "box" / f"t{i}" / "Camera_1.mp4"
             out.append(video)
-            if video.exists() and video.with_suffix(".truth.json").exists():
+            if rendered(video):
                 continue
             video.parent.mkdir(parents=True, exist_ok=True)
             render_informative(scene, video, np.random.default_rng([seed, s, i]), seed * 100 + s * 10 + i)

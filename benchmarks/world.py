@@ -104,7 +104,9 @@ def render_world(path: Path, condition: Condition, hand: bool, seed: int) -> dic
     from galileo_jax.synth import draw_informative_params, render_video, resolve_params, simulate_motion
 
     truth_path = path.with_suffix(".truth.json")
-    if path.exists() and truth_path.exists():
+    from _common import rendered
+
+    if rendered(path):
         return json.loads(truth_path.read_text())
     rng = np.random.default_rng(seed)
     layout = world_scene(rng, condition.size)

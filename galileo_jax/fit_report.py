@@ -56,7 +56,7 @@ class FitReport:
         prediction: rest positions and "will it slide?" beyond the video.
         outputs: paths written.
         timings: seconds per stage.
-        adequacy: the fit-adequacy verdict (:func:`galileo_jax.criticism.residuals.adequacy`): do the
+        adequacy: the fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy.adequacy`): do the
             residuals look like noise, and if not, where the model fails.
         posterior: the posterior as draws (:class:`Posterior`; None for the seed's sampler).
     """
@@ -93,7 +93,7 @@ class JointFitReport:
         video_loglik: per video the log-likelihood at the estimate (nats).
         outputs: paths written.
         timings: seconds per stage.
-        adequacy: per video the fit-adequacy verdict (:func:`galileo_jax.criticism.residuals.adequacy`).
+        adequacy: per video the fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy.adequacy`).
     """
 
     videos: list[Path]

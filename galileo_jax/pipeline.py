@@ -2,8 +2,8 @@
 
 :func:`run_fit` observes the video, builds the inference :class:`Problem`, runs the chosen
 method, simulates the estimate (and posterior draws) over the whole video and beyond, and
-writes ``result.json``, ``profiles.png``, ``tracking.png`` and ``overlay.mp4`` atomically into the output
-folder. It returns a :class:`~galileo_jax.fit_report.FitReport` for the console summary.
+writes ``result.json``, ``profiles.png``, ``tracking.png``, ``posterior.nc`` and ``overlay.mp4`` atomically
+into the output folder (:mod:`galileo_jax.report.fit_files`). It returns a :class:`~galileo_jax.fit_report.FitReport` for the console summary.
 """
 
 from __future__ import annotations
@@ -17,16 +17,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from galileo_jax.criticism import residuals as criticism
-from galileo_jax.calibration import calibration
+from galileo_jax.criticism.adequacy import adequacy as fit_adequacy
 from galileo_jax.config import FitConfig
 from galileo_jax.errors import GalileoError
-from galileo_jax.fit_report import FitReport, JointFitReport, Posterior, identifiability_statement
+from galileo_jax.fit_report import FitReport, JointFitReport, Posterior
 from galileo_jax.inference.problem import Problem
 from galileo_jax.observation import Observation, trace_names
 from galileo_jax.predict import RestPrediction, predict_rest, slides
-from galileo_jax.report.figures import profile_figure, tracking_figure
-from galileo_jax.report.results import package_versions, write_json, write_netcdf
+from galileo_jax.report.fit_files import write_fit, write_joint_fit
 from galileo_jax.scene import Scene
 
 
@@ -357,13 +355,13 @@ def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: st
     rmse = _rmse(obs, simulated)
     prediction = _prediction(problem, scene, obs, theta_best, draws, cfg.prediction.tail)
     poses = simulated_poses(problem, theta_best)
-    adequacy = criticism.adequacy(obs, simulated, poses, cfg.likelihood.sd_model)
+    adequacy = fit_adequacy(obs, simulated, poses, cfg.likelihood.sd_model)
     timings["simulate_and_predict_s"] = time.perf_counter() - t
 
     report = FitReport(tracked.video, scene, method, obs, parameters, diagnostics, simulated, band, rmse, prediction,
                        timings=timings, adequacy=adequacy, posterior=posterior)
     t = time.perf_counter()
-    _write_outputs(report, poses, tracked.clip, out, cfg, seed, overlay, progress)
+    write_fit(report, poses, tracked.clip, out, cfg, seed, overlay, progress)
     timings["write_s"] = time.perf_counter() - t
     return report
 
@@ -439,71 +437,6 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
     return results
 
 
-def _write_outputs(report: FitReport, poses: np.ndarray, clip, out: Path, cfg: FitConfig, seed: int,
-                   overlay: bool, progress: bool) -> None:
-    """Write a fit's files into ``out``; ``poses`` (N, n, 3): the simulated poses at the estimate
-    (for the overlay)."""
-    obs = report.observation
-    out.mkdir(parents=True, exist_ok=True)
-    times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
-    fig = out / "profiles.png"
-    title = f"{report.video.name}: {report.method} fit, scene {report.scene.name}"
-    profile_figure(fig, times, obs.profile, report.simulated, obs.velocity_sd, np.asarray(obs.mask, bool),
-                   report.band, title)
-    report.outputs["figure"] = str(fig)
-    if obs.tracking is not None:
-        from galileo_jax.observe.tracks import object_windows
-
-        path = out / "tracking.png"
-        radius = [1.3 * float(np.hypot(*w.half)) for w in object_windows(report.scene, calibration(report.scene.camera))]
-        tracking_figure(path, clip.frames, obs.pixels, obs.tracking.quality, obs.tracking.measured, radius, obs.fps,
-                        obs.tracking.methods, obs.tracking.quality_min,
-                        title=f"{report.video.name}: what the tracker saw")
-        report.outputs["tracking_figure"] = str(path)
-    if report.posterior is not None:
-        from galileo_jax.inference.summary import inference_data
-
-        post = report.posterior
-        idata = inference_data(post.draws, obs, sample_stats=post.sample_stats,
-                               attrs={"method": report.method, "draws_kind": post.kind, "video": str(report.video),
-                                      "scene": report.scene.name, "seed": seed})
-        path = out / "posterior.nc"
-        write_netcdf(path, idata)
-        report.outputs["posterior"] = str(path)
-    if overlay:
-        from galileo_jax.report.overlay import write_overlay
-
-        calib = calibration(report.scene.camera, anchor_px=obs.pixels[0, 0], anchor_world=obs.positions[0, 0])
-        path = out / "overlay.mp4"
-        write_overlay(path, clip.frames, obs.fps, report.scene, calib, poses, obs.pixels,
-                      caption=f"simulated ({report.method})", progress=progress)
-        report.outputs["overlay"] = str(path)
-    result = {
-        "video": str(report.video),
-        "scene": report.scene.model_dump(mode="json"),
-        "method": report.method,
-        "parameters": report.parameters,
-        "identifiability": identifiability_statement(report.scene),
-        "diagnostics": report.diagnostics,
-        "rmse_per_trace_m_per_s": report.rmse,
-        "adequacy": report.adequacy,
-        "prediction": report.prediction,
-        "observation": {
-            "fps": obs.fps, "n_frames": int(len(obs.frame_times)), "release_time_s": obs.release_time,
-            "position_sd_m": obs.position_sd, "velocity_sd_m_per_s": obs.velocity_sd,
-            "moved": obs.moved, "fit_samples": int(np.sum(obs.mask)),
-            "tracking": None if obs.tracking is None else obs.tracking.summary(),
-        },
-        "settings": {**cfg.model_dump(), "seed": seed},
-        "timings_s": report.timings,
-        "versions": package_versions(),
-        "outputs": report.outputs,
-    }
-    path = out / "result.json"
-    write_json(path, result)
-    report.outputs["result"] = str(path)
-
-
 # ---------------------------------------------------------------------------- several videos
 def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: str, out: Path,
                   fps: float | None = None, seed: int = 0, per_video: tuple[str, ...] = (),
@@ -556,33 +489,12 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     bands = [np.quantile(np.asarray(s), [0.05, 0.95], axis=0) for s in joint.simulate(draws)]
     rmse = [_rmse(o, s) for o, s in zip(observations, simulated)]
     video_ll = [float(x) for x in joint.video_log_likelihoods(theta_best)]
-    adequacy = [criticism.adequacy(o, s, simulated_poses(p, np.asarray(joint.theta_for(j, theta_best))),
+    adequacy = [fit_adequacy(o, s, simulated_poses(p, np.asarray(joint.theta_for(j, theta_best))),
                                    cfg.likelihood.sd_model)
                 for j, (o, s, p) in enumerate(zip(observations, simulated, joint.problems))]
     timings["simulate_s"] = time.perf_counter() - t
     report = JointFitReport([v for v, _ in inputs], [s for _, s in inputs], method, observations, joint.space.per_video,
                             summ["parameters"], summ["diagnostics"], simulated, bands, rmse, video_ll, timings=timings,
                             adequacy=adequacy)
-    out.mkdir(parents=True, exist_ok=True)
-    for j, (obs, video) in enumerate(zip(observations, report.videos)):
-        times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
-        path = out / f"profiles_{j + 1}.png"
-        profile_figure(path, times, obs.profile, simulated[j], obs.velocity_sd, np.asarray(obs.mask, bool), bands[j],
-                       f"{video.name}: joint {method} fit of {len(inputs)} videos")
-        report.outputs[f"profiles_{j + 1}"] = str(path)
-    result = {
-        "videos": [str(v) for v in report.videos], "scenes": [s.model_dump(mode="json") for s in report.scenes],
-        "method": method, "shared": [n for n in joint.names if "@" not in n], "per_video": list(report.per_video),
-        "parameters": report.parameters, "identifiability": identifiability_statement(report.scenes[0]),
-        "diagnostics": report.diagnostics, "rmse_per_video_m_per_s": rmse, "loglik_per_video": video_ll,
-        "adequacy_per_video": adequacy,
-        "observations": [{"fps": o.fps, "n_frames": int(len(o.frame_times)), "release_time_s": o.release_time,
-                          "velocity_sd_m_per_s": o.velocity_sd, "fit_samples": int(np.sum(o.mask)),
-                          "tracking": None if o.tracking is None else o.tracking.summary()} for o in observations],
-        "settings": {**cfg.model_dump(), "seed": seed}, "timings_s": timings, "versions": package_versions(),
-        "outputs": report.outputs,
-    }
-    path = out / "result.json"
-    write_json(path, result)
-    report.outputs["result"] = str(path)
+    write_joint_fit(report, out, cfg, seed, shared=[n for n in joint.names if "@" not in n])
     return report

@@ -30,7 +30,6 @@ import math
 
 from typing import NamedTuple  # noqa: E402
 
-import cv2  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -38,6 +37,7 @@ from galileo_jax.effects import resolve_effects  # noqa: E402
 from galileo_jax.errors import GalileoError  # noqa: E402
 from galileo_jax.physics.model import OBJECT_COLOURS, build_spec, object_start_pose  # noqa: E402
 from galileo_jax.scene import Camera, Scene  # noqa: E402
+from galileo_jax.textures import MAX_TEXELS, checker_texture, clutter_texture, speckle_texture  # noqa: E402
 
 #: Name of the render camera added to the model.
 CAMERA = "front"
@@ -298,121 +298,6 @@ def frame_view(scene: Scene, positions: np.ndarray, width: int, height: int, mar
     return View(((x_lo + x_hi) / 2, (z_lo + z_hi) / 2), scale, width, height, projection, float(distance), direction)
 
 
-def checker_texture(rgb, n: int = 64, checks: int = 4, seed: int = 0) -> np.ndarray:
-    """A checker texture with a random shade per square (breaks the periodicity for KLT).
-
-    Args:
-        rgb: (3,) base colour, 0..1.
-        n: texture size in texels.
-        checks: squares per side.
-        seed: seed of the shade pattern.
-
-    Returns:
-        (n, n, 3) uint8 image.
-    """
-    rng = np.random.default_rng(seed)
-    base = np.asarray(rgb, dtype=float)
-    dark = 0.1 + 0.3 * base
-    idx = np.arange(n) * checks // n
-    parity = (idx[:, None] + idx[None, :]) % 2
-    shade = rng.uniform(0.8, 1.15, size=(checks, checks))[idx[:, None], idx[None, :]]
-    img = np.where(parity[..., None] == 0, base, dark) * shade[..., None]
-    return np.clip(255 * img, 0, 255).astype(np.uint8)
-
-
-def speckle_texture(rgb, n: int = 32, spot: float = 0.7, frac: float = 0.25, seed: int = 0) -> np.ndarray:
-    """A skin/cloth texture: base colour with random darker texels ((n, n, 3) uint8)."""
-    rng = np.random.default_rng(seed)
-    base = np.asarray(rgb, dtype=float)
-    img = np.broadcast_to(base, (n, n, 3)).copy()
-    mask = rng.random((n, n)) < frac
-    img[mask] *= spot
-    img *= rng.uniform(0.95, 1.05, size=(n, n, 1))
-    return np.clip(255 * img, 0, 255).astype(np.uint8)
-
-
-#: Drawn items (posters, shelves, cables, blobs) per square metre of a cluttered backdrop.
-CLUTTER_DENSITY = 40.0
-#: Largest side of the cluttered backdrop's texture in texels.
-MAX_TEXELS = 2048
-
-
-def clutter_texture(width: int, height: int, texels_per_metre: float, seed: int = 0) -> np.ndarray:
-    """A cluttered wall: posters, shelves with boxes, cables and blobs of varied size, colour and
-    contrast on a light wall tone that darkens downwards.
-
-    Args:
-        width, height: texture size in texels.
-        texels_per_metre: texels per metre of wall; items are sized in metres (1 cm to 1.2 m).
-        seed: seed of the layout.
-
-    Returns:
-        (height, width, 3) uint8 RGB image.
-    """
-    rng = np.random.default_rng(seed)
-    tone = rng.uniform(0.6, 0.9) * rng.uniform(0.85, 1.0, size=3)
-    shade = np.linspace(1.05, 0.9, height)[:, None, None]
-    wall = np.clip(255 * tone * shade, 0, 255).astype(np.uint8)
-    img = np.ascontiguousarray(np.broadcast_to(wall, (height, width, 3)))
-    count = int(np.clip(round(CLUTTER_DENSITY * width * height / texels_per_metre**2), 6, 400))
-    painters = (_draw_poster, _draw_shelf, _draw_cable, _draw_blob)
-    for kind in rng.choice(len(painters), size=count, p=(0.35, 0.1, 0.25, 0.3)):
-        painters[kind](img, rng, texels_per_metre)
-    return img
-
-
-def _random_colour(rng: np.random.Generator, value=(20, 256), hue=(0, 180)) -> tuple[int, int, int]:
-    """An RGB colour (0..255) of random hue, moderate saturation and brightness in ``value`` (OpenCV HSV ranges)."""
-    hsv = np.uint8([[[rng.integers(*hue), rng.integers(0, 200), rng.integers(*value)]]])
-    return tuple(int(c) for c in cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0])
-
-
-def _random_point(img: np.ndarray, rng: np.random.Generator) -> tuple[int, int]:
-    return int(rng.integers(0, img.shape[1])), int(rng.integers(0, img.shape[0]))
-
-
-def _draw_poster(img: np.ndarray, rng: np.random.Generator, tpm: float) -> None:
-    """A rectangle 4-45 cm with an inner picture and a few lines of 'text'."""
-    w, h = (rng.uniform(0.04, 0.45, size=2) * tpm).astype(int) + 2
-    x, y = _random_point(img, rng)
-    cv2.rectangle(img, (x, y), (x + w, y + h), _random_colour(rng), -1)
-    m = max(1, min(w, h) // 10)
-    cv2.rectangle(img, (x + m, y + m), (x + w - m, y + h // 2), _random_colour(rng), -1)
-    ink = _random_colour(rng, value=(0, 120))
-    for k in range(int(rng.integers(0, 5))):
-        yy = y + h // 2 + m + k * max(2, h // 10)
-        cv2.line(img, (x + m, yy), (x + m + int(rng.uniform(0.3, 1.0) * (w - 2 * m)), yy), ink, max(1, h // 40))
-
-
-def _draw_shelf(img: np.ndarray, rng: np.random.Generator, tpm: float) -> None:
-    """A wooden board 0.3-1.2 m long with 1-5 boxes standing on it."""
-    length, thick = int(rng.uniform(0.3, 1.2) * tpm), max(2, int(rng.uniform(0.012, 0.03) * tpm))
-    x, y = _random_point(img, rng)
-    cv2.rectangle(img, (x, y), (x + length, y + thick), _random_colour(rng, value=(60, 200), hue=(8, 22)), -1)
-    for _ in range(int(rng.integers(1, 6))):
-        bw, bh = (rng.uniform([0.03, 0.03], [0.15, 0.25]) * tpm).astype(int) + 1
-        bx = x + int(rng.integers(0, max(1, length - bw)))
-        cv2.rectangle(img, (bx, y - bh), (bx + bw, y), _random_colour(rng), -1)
-
-
-def _draw_cable(img: np.ndarray, rng: np.random.Generator, tpm: float) -> None:
-    """A dark cable 3-12 mm thick, hanging in a smooth wavy curve."""
-    x, y = _random_point(img, rng)
-    t = np.linspace(0.0, 1.0, 24)
-    drop, sway = rng.uniform(0.1, 0.8) * tpm, rng.uniform(-0.3, 0.3) * tpm
-    wave = rng.uniform(0.01, 0.08) * tpm * np.sin(2 * np.pi * rng.uniform(0.5, 2.5) * t + rng.uniform(0, 6.3))
-    pts = np.stack([x + sway * t + wave, y + drop * t], axis=-1).round().astype(np.int32)
-    cv2.polylines(img, [pts], False, _random_colour(rng, value=(0, 90)), max(1, int(rng.uniform(0.003, 0.012) * tpm)),
-                  cv2.LINE_AA)
-
-
-def _draw_blob(img: np.ndarray, rng: np.random.Generator, tpm: float) -> None:
-    """A filled ellipse 1-12 cm across at a random angle."""
-    axes = tuple(int(a) + 1 for a in rng.uniform(0.005, 0.06, size=2) * tpm)
-    cv2.ellipse(img, _random_point(img, rng), axes, float(rng.uniform(0, 180)), 0, 360, _random_colour(rng), -1,
-                cv2.LINE_AA)
-
-
 def _set_texture(spec: mujoco.MjSpec, name: str, img: np.ndarray, create: bool = False,
                  kind: mujoco.mjtTexture = mujoco.mjtTexture.mjTEXTURE_CUBE) -> None:
     """Give texture ``name`` the image ``img`` (h, w, 3) uint8 (a cube texture: on all six faces)."""
@@ -424,7 +309,7 @@ def _set_texture(spec: mujoco.MjSpec, name: str, img: np.ndarray, create: bool =
 
 def _add_backdrop(spec: mujoco.MjSpec, view: View, y: float, backdrop: str, seed: int) -> None:
     """The backdrop wall at world depth ``y`` (m, behind the objects): a 12 m grey gradient
-    (``plain``) or a :func:`clutter_texture` wall covering the view with some margin
+    (``plain``) or a :func:`~galileo_jax.textures.clutter_texture` wall covering the view with some margin
     (``clutter``; about one texel per image pixel, at most :data:`MAX_TEXELS` a side)."""
     if backdrop == "clutter":
         hw, hh = (1.1 * s + 0.05 for s in view.half_size(y))
@@ -548,7 +433,7 @@ def build_render_model(scene: Scene, view: View, timestep: float, hand: bool = F
         look: ``"checker"`` (a checker texture with a random shade per square on the base
             colour) or ``"plain"`` (the base colour, no texture).
         colours: (n_objects, 3) base RGB in [0, 1], or None (:func:`object_colours`).
-        backdrop: ``"plain"`` (grey gradient wall) or ``"clutter"`` (:func:`clutter_texture`).
+        backdrop: ``"plain"`` (grey gradient wall) or ``"clutter"`` (:func:`~galileo_jax.textures.clutter_texture`).
         seed: seed of the cluttered backdrop.
         world: physics the model does not have (:class:`~galileo_jax.physics.model.WorldPhysics`): a
             ramp board is drawn as the box it is.

@@ -19,6 +19,7 @@ import pytest
 
 from galileo_jax.criticism import noise as CN
 from galileo_jax.criticism import phases as CP
+from galileo_jax.criticism import adequacy as A
 from galileo_jax.criticism import residuals as C
 from galileo_jax.criticism import structure as CS
 from galileo_jax.observation import Observation, profile_from_positions
@@ -412,27 +413,27 @@ def test_base_loglik_by_engine():
 
 
 def test_fit_adequacy_verdict():
-    """criticism.adequacy, the verdict every fit report carries: tracking noise alone is adequate
+    """criticism.adequacy.adequacy, the verdict every fit report carries: tracking noise alone is adequate
     (RMSE near the noise floor); object 2 sliding three times farther than simulated is not,
     and the verdict names the floor phase; an impact mistimed by one frame, the simulator's own
     inexactness, is left out of the calm RMSE (within one sample of a velocity jump)."""
     obs, sim, poses = synthetic(0, sd_p=0.001, sd_model=0.0)
-    ok = C.adequacy(obs, sim, poses)
+    ok = A.adequacy(obs, sim, poses)
     assert ok["adequate"] and ok["verdict"].startswith("The model describes the video")
-    assert ok["calm_rmse_over_floor"] <= C.ADEQUATE_RATIO and ok["rmse_over_floor"] <= C.ADEQUATE_RATIO_ALL
+    assert ok["calm_rmse_over_floor"] <= A.ADEQUATE_RATIO and ok["rmse_over_floor"] <= A.ADEQUATE_RATIO_ALL
     assert 0.5 < ok["calm_fraction"] < 1.0  # the samples next to the release, foot and impact are left out
     json.dumps(ok)
     obs, sim, poses = synthetic(0, sd_p=0.001, sd_model=0.0, scale2=3.0)
-    bad = C.adequacy(obs, sim, poses)
+    bad = A.adequacy(obs, sim, poses)
     assert not bad["adequate"] and not bad["looks_like_noise"]
     assert {"trace": "object 2 x", "phase": "floor"} in bad["flagged"]
     assert bad["verdict"].startswith("The model fails on the floor: object 2 travels")
-    assert bad["rmse_over_floor"] > C.ADEQUATE_RATIO_ALL
+    assert bad["rmse_over_floor"] > A.ADEQUATE_RATIO_ALL
     # the calm mask leaves out only samples next to a velocity jump of GATE_JUMP or more
-    calm = C.calm_mask(obs, sim)
+    calm = A.calm_mask(obs, sim)
     out = np.asarray(obs.mask, bool)[None] & ~calm
     assert out.any() and calm.any()
     jump = np.zeros(sim.shape[1], bool)
-    jump[1:] = (np.abs(np.diff(sim, axis=1)) >= C.GATE_JUMP).any(axis=0)
+    jump[1:] = (np.abs(np.diff(sim, axis=1)) >= A.GATE_JUMP).any(axis=0)
     near = np.convolve(jump.astype(float), np.ones(5), mode="same") > 0  # within 2 samples of a jump
     assert near[out.any(axis=0)].all()

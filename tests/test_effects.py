@@ -500,7 +500,7 @@ def test_a_ramp_friction_is_mimicked_by_its_equivalent_ramp_angle_error():
     0.5 mm over 0.6 s; the report says whether delta is within the angle tolerance."""
     from types import SimpleNamespace
 
-    from galileo_jax.criticism.diagnosis import angle_alternative, equivalent_angle_error
+    from galileo_jax.criticism.alternatives import angle_alternative, equivalent_angle_error
     from galileo_jax.synth import resolve_params, simulate_motion
 
     k, dk = 0.2, -0.06

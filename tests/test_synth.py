@@ -42,7 +42,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from galileo_jax import render, synth
+from galileo_jax import render, synth, textures
 from galileo_jax.calibration import calibration
 from galileo_jax.effects import get_effect
 from galileo_jax.effects.runtime import has_step_hooks
@@ -678,9 +678,9 @@ def test_object_look_colour_spread(scene, motion, look, spread):
 
 
 def test_clutter_backdrop_is_seeded_and_visual_only(scene):
-    a, b = (render.clutter_texture(200, 120, 400.0, seed=s) for s in (1, 2))
+    a, b = (textures.clutter_texture(200, 120, 400.0, seed=s) for s in (1, 2))
     assert a.shape == (120, 200, 3) and a.dtype == np.uint8
-    np.testing.assert_array_equal(a, render.clutter_texture(200, 120, 400.0, seed=1))
+    np.testing.assert_array_equal(a, textures.clutter_texture(200, 120, 400.0, seed=1))
     assert np.abs(a.astype(int) - b).mean() > 10 and a.std() > 20
     view = render.View((0.0, 0.1), 200.0, 64, 48, "perspective", 2.2, "left")
     plain = build_model(scene)[0]

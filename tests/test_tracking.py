@@ -20,7 +20,6 @@ Skipped where no OpenGL context can be made. About 40 s in all.
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 

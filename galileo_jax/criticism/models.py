@@ -16,6 +16,7 @@ import numpy as np
 
 from galileo_jax.criticism import noise
 from galileo_jax.criticism import residuals as criticism
+from galileo_jax.criticism.adequacy import profile_rmse
 from galileo_jax.criticism.settings import DiagnoseSettings
 from galileo_jax.effects import Effect, available_effects, resolve_effects
 from galileo_jax.inference.grad import GradResult, fit_grad
@@ -394,7 +395,7 @@ def simulate_video(problem: Problem, theta: np.ndarray) -> tuple[np.ndarray, np.
 
 def union_rmse(union: Union, theta: np.ndarray) -> float:
     """Profile RMSE (m/s) over every video's fit window at the union's ``theta``."""
-    rmse = [criticism.profile_rmse(p.observation, simulate_video(p, union.theta_for(j, theta))[1])
+    rmse = [profile_rmse(p.observation, simulate_video(p, union.theta_for(j, theta))[1])
             for j, p in enumerate(union.problems)]
     return pooled_rms(rmse, union.samples_used())
 
@@ -415,7 +416,7 @@ def evaluate(union: Union, res: GradResult, free_effects, settings: DiagnoseSett
         # MA(1) noise model, and with the bare tracking noise (lag-1 correlation -> -1/2) the
         # whitened CUSUM flagged the heavy-tailed but unstructured residuals of a real clip (p = 4e-24)
         videos.append(VideoFit(simulated, poses, p.likelihood.used_residuals(simulated),
-                               criticism.profile_rmse(obs, simulated),
+                               profile_rmse(obs, simulated),
                                criticism.summarize(obs, simulated, poses, settings.sd_model), z_test))
     n_used = union.samples_used()
     name = "base" if not free_effects else "base + " + " + ".join(free_effects)

@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 
-from galileo_jax.criticism import residuals as criticism
+from galileo_jax.criticism import adequacy as rule
 from galileo_jax.criticism.models import ModelFit, Round, Union, base_name, fit_model
 from galileo_jax.criticism.screening import refit_init
 from galileo_jax.criticism.settings import DiagnoseSettings
@@ -27,15 +27,15 @@ def event_sds(base: ModelFit, observations) -> list[np.ndarray]:
 
 
 #: Velocity jump (m/s) that marks a contact event for the adequacy check (step 3 of
-#: :mod:`galileo_jax.criticism.diagnosis`; :data:`galileo_jax.criticism.residuals.GATE_JUMP`,
+#: :mod:`galileo_jax.criticism.diagnosis`; :data:`galileo_jax.criticism.adequacy.GATE_JUMP`,
 #: shared with every fit's adequacy verdict).
-GATE_JUMP = criticism.GATE_JUMP
+GATE_JUMP = rule.GATE_JUMP
 
 
 def calm_masks(base: ModelFit, observations) -> list[np.ndarray]:
     """Per video the (2n, N-1) bool mask of fitted samples away from contact events
-    (:func:`galileo_jax.criticism.residuals.calm_mask` of ``base``'s simulated profile)."""
-    return [criticism.calm_mask(o, v.simulated) for v, o in zip(base.videos, observations)]
+    (:func:`galileo_jax.criticism.adequacy.calm_mask` of ``base``'s simulated profile)."""
+    return [rule.calm_mask(o, v.simulated) for v, o in zip(base.videos, observations)]
 
 
 def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
@@ -48,7 +48,7 @@ def calm_rmse(fit: ModelFit, observations, masks) -> tuple[float, float]:
 def adequate(fit: ModelFit, rmse_calm: float, floor: float, settings: DiagnoseSettings) -> bool:
     """Step 3 of :mod:`galileo_jax.criticism.diagnosis`: RMSE away from contact events <= ``adequate_ratio`` x the
     noise floor and RMSE on all samples <= ``adequate_ratio_all`` x the floor."""
-    return criticism.within_floor(rmse_calm, fit.rmse, floor, settings.adequate_ratio, settings.adequate_ratio_all)
+    return rule.within_floor(rmse_calm, fit.rmse, floor, settings.adequate_ratio, settings.adequate_ratio_all)
 
 
 def adequate_round(rnd: Round, current: ModelFit, observations, masks, floor: float,

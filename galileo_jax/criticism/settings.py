@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from galileo_jax.criticism import residuals as criticism
+from galileo_jax.criticism.adequacy import ADEQUATE_RATIO, ADEQUATE_RATIO_ALL
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
 
 
@@ -107,7 +107,7 @@ class DiagnoseSettings:
             or an angle read off the image: about 1). An error in the angle changes only the
             slide acceleration on the ramp, exactly as a ramp friction does, so a named
             ``ramp_friction`` is reported with the angle error that would mimic it
-            (:func:`~galileo_jax.criticism.diagnosis.equivalent_angle_error`) and, within this tolerance, as possibly that
+            (:func:`~galileo_jax.criticism.alternatives.equivalent_angle_error`) and, within this tolerance, as possibly that
             calibration error rather than the surface.
         quiet_p, quiet_gain, quiet_max_ratio: step 4b of :mod:`galileo_jax.criticism.diagnosis`: when the
             current model fits within ``quiet_max_ratio`` of the noise floor (RMSE over all
@@ -128,8 +128,8 @@ class DiagnoseSettings:
     refits: int = 6
     alpha: float = 0.05
     min_rmse_drop: float = 0.10
-    adequate_ratio: float = criticism.ADEQUATE_RATIO
-    adequate_ratio_all: float = criticism.ADEQUATE_RATIO_ALL
+    adequate_ratio: float = ADEQUATE_RATIO
+    adequate_ratio_all: float = ADEQUATE_RATIO_ALL
     max_effects: int = 1
     likelihood: str = DEFAULT_KIND
     sd_model: float = DEFAULT_SD_MODEL

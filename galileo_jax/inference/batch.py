@@ -46,9 +46,9 @@ from galileo_jax.inference.grad import (
     GradResult,
     _lm_solver,
     grad_result,
-    polish_many,
     residual_jacobian,
 )
+from galileo_jax.inference.polish import polish_many
 from galileo_jax.inference.problem import (
     DEFAULT_FD_STEP,
     Engine,

@@ -52,7 +52,6 @@ from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
 from galileo_jax.scene import Scene
 
-
 #: Architectures by name (``CNNSpec.architecture``).
 ARCHITECTURES = ("profile", "seed")
 

@@ -33,8 +33,8 @@ methods ARE ParamSpace's (borrowed functions that only read ``names``/``lower``/
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp

@@ -50,9 +50,19 @@ from galileo_jax.effects.runtime import release_delay, split_values
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL, Likelihood, make_likelihood
 from galileo_jax.observation import Observation
 from galileo_jax.params import ParamSpace
+from galileo_jax.physics.simulate import (
+    PhysParams,
+    SimArrays,
+    Simulator,
+    make_simulator,
+    rollout,
+    sample_poses,
+    scene_effects,
+    steps_needed,
+    structure_key,
+    velocity_profile,
+)
 from galileo_jax.scene import Scene
-from galileo_jax.physics.simulate import (PhysParams, SimArrays, Simulator, make_simulator, rollout, sample_poses,
-                                  scene_effects, steps_needed, structure_key, velocity_profile)
 
 #: Default central-difference step in unconstrained coordinates z (see inference/grad.py for
 #: the measurement that chose it).

@@ -48,7 +48,6 @@ import numpy as np
 import optimistix as optx
 
 from galileo_jax.inference.covariance import Z90
-
 from galileo_jax.inference.grad import lm_no_worse
 
 #: A side of an interval is searched where the profile's root deviance at its Gauss-Newton end

@@ -18,192 +18,13 @@ from galileo_jax.calibration import Calibration
 from galileo_jax.errors import TrackingError
 from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import track_matte
+from galileo_jax.observe.motion import MAX_ANGLE_DEG, Small, dense_flow, downscale, first_motion, roi_box
 from galileo_jax.observe.outline import track_circles
 from galileo_jax.observe.track import track_scene, tracker_of
-from galileo_jax.observe.tracks import (Window, as_gray, background_model, expected_start_pixels, frame_median,
+from galileo_jax.observe.tracks import (Window, background_model, expected_start_pixels, frame_median,
                                        inside_fraction, object_windows, path_direction, polygon_mask, spread_indices,
                                        window_corners)
 from galileo_jax.scene import Scene
-
-# ---------------------------------------------------------------------------- finding objects
-
-#: Longest side (px) of the downscaled frames used for motion detection.
-WORK_SIZE = 640
-#: A moving pixel's flow must be within this angle (deg) of the expected direction.
-MAX_ANGLE_DEG = 40.0
-
-
-class _Small(NamedTuple):
-    """Downscaled grey frames for motion detection; ``f`` = small px per full px."""
-
-    gray: np.ndarray
-    f: float
-
-    def to_full(self, uv) -> np.ndarray:
-        return (np.asarray(uv, float) + 0.5) / self.f - 0.5
-
-    def to_small(self, uv) -> np.ndarray:
-        return (np.asarray(uv, float) + 0.5) * self.f - 0.5
-
-
-def _downscale(frames: np.ndarray) -> _Small:
-    h, w = frames.shape[1:3]
-    f = min(1.0, WORK_SIZE / max(h, w))
-    size = (max(1, round(w * f)), max(1, round(h * f)))
-    gray = np.stack([cv2.resize(as_gray(fr), size, interpolation=cv2.INTER_AREA) if f < 1 else as_gray(fr)
-                     for fr in frames])
-    return _Small(gray, size[0] / w)
-
-
-class _Blob(NamedTuple):
-    centroid: np.ndarray  # (2,) small px
-    area: float
-    flow: np.ndarray  # (2,) mean flow, small px / frame
-    border: bool
-    front: np.ndarray  # (2,) centroid of its leading part (one object deep), small px
-
-
-def _changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(h, w) bool: pixels near a real change between two grey frames (above the noise),
-    grown by a few pixels so that flat patches inside a moving object count too."""
-    d = cv2.absdiff(a, b)
-    noise = 1.4826 * float(np.median(d)) + 1.0
-    changed = (d > max(6.0, 4.0 * noise)).astype(np.uint8)
-    return cv2.dilate(changed, np.ones((7, 7), np.uint8)) > 0
-
-
-def _moving_blobs(flow: np.ndarray, direction: np.ndarray, allowed: np.ndarray, min_speed: float,
-                  min_area: float, offset: np.ndarray, depth: float = np.inf) -> list[_Blob]:
-    """Connected regions (of ``allowed`` pixels) whose optical flow points along ``direction``
-    (within :data:`MAX_ANGLE_DEG`) faster than ``min_speed`` px/frame, at least ``min_area`` px;
-    ``front`` is the centroid of a region's pixels within ``depth`` px of its leading point
-    along ``direction`` (the object itself, where a hand that lifts off trails it)."""
-    along = flow @ direction
-    speed = np.linalg.norm(flow, axis=-1)
-    mask = ((along > min_speed) & (along >= math.cos(math.radians(MAX_ANGLE_DEG)) * speed) & allowed).astype(np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    h, w = mask.shape
-    blobs = []
-    for j in range(1, n):
-        x, y, bw, bh, area = stats[j]
-        if area < min_area:
-            continue
-        sel = labels == j
-        border = x == 0 or y == 0 or x + bw >= w or y + bh >= h
-        ys, xs = np.nonzero(sel)
-        proj = xs * direction[0] + ys * direction[1]
-        lead = proj >= proj.max() - depth
-        front = np.array([xs[lead].mean(), ys[lead].mean()])
-        blobs.append(_Blob(cents[j] + offset, float(area), flow[sel].mean(0), bool(border), front + offset))
-    return blobs
-
-
-def _roi_box(shape, centre, radius) -> tuple[np.ndarray, np.ndarray]:
-    h, w = shape
-    if centre is None:
-        return np.array([0, 0]), np.array([w, h])
-    lo = np.maximum(np.floor(np.asarray(centre) - radius).astype(int), 0)
-    hi = np.minimum(np.ceil(np.asarray(centre) + radius).astype(int) + 1, [w, h])
-    return lo, hi
-
-
-def _flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 15, 3, 5, 1.2, 0)
-
-
-def _extends(chain: list[_Blob], blob: _Blob, direction: np.ndarray, gate: float) -> bool:
-    last = chain[-1]
-    predicted = last.centroid + last.flow
-    close = np.linalg.norm(blob.centroid - predicted) <= max(gate, 2 * np.linalg.norm(last.flow))
-    return bool(close and (blob.centroid - last.centroid) @ direction >= -1.0)
-
-
-def _on_path(chain: list[_Blob], direction: np.ndarray) -> bool:
-    """The blob moved along ``direction`` (not off it) over the chain."""
-    d = chain[-1].centroid - chain[0].centroid
-    along = d @ direction
-    across = abs(d @ np.array([-direction[1], direction[0]]))
-    return bool(along > -1.0 and across <= 0.5 * max(along, 0.0) + 2.0)
-
-
-class _Start(NamedTuple):
-    """A steady motion found (:func:`_first_motion`): its first frame and centroid (small
-    px), and a later frame and centroid of the same moving region, as far from the first as
-    asked (clear of a hand that held it), or the chain's last if it ended sooner."""
-
-    k: int
-    centroid: np.ndarray
-    k_far: int
-    centroid_far: np.ndarray
-
-
-def _blobs_at(small: _Small, k: int, lo, hi, direction, min_speed, min_area, exclude, depth=np.inf
-              ) -> list[_Blob] | None:
-    a = small.gray[k, lo[1]:hi[1], lo[0]:hi[0]]
-    b = small.gray[k + 1, lo[1]:hi[1], lo[0]:hi[0]]
-    if a.size == 0:
-        return None
-    allowed = _changed(a, b)
-    if exclude is not None:
-        allowed &= ~exclude(k)[lo[1]:hi[1], lo[0]:hi[0]]
-    return _moving_blobs(_flow(a, b), direction, allowed, min_speed, min_area, lo.astype(float), depth)
-
-
-def _first_motion(small: _Small, direction, centre, radius, min_area, k_start: int = 0,
-                  exclude=None, min_speed: float = 0.4, run: int = 3, away: float = 0.0, depth: float = np.inf
-                  ) -> _Start | None:
-    """First frame at which a region starts a steady motion along ``direction``.
-
-    Dense (Farneback) flow between consecutive downscaled frames, inside a square of
-    ``radius`` (small px) around ``centre`` (or everywhere); moving regions are chained
-    from frame to frame. A chain counts once it lasts ``run`` frames, keeps to the
-    direction and did not start at the image border (a hand or arm entering or leaving the
-    picture). ``exclude(k)`` may return a (h, w) bool mask of small pixels to ignore. The
-    chain found is then followed on until its region is ``away`` small px from where it
-    started (at most 20 frames more); its position there is the centroid of its leading part,
-    ``depth`` small px deep (the object's length).
-
-    Returns:
-        :class:`_Start`, or None.
-    """
-    lo, hi = _roi_box(small.gray.shape[1:], centre, radius)
-    chains: list[list[_Blob]] = []
-    gate = max(6.0, math.sqrt(min_area))
-    for k in range(k_start, len(small.gray) - 1):
-        blobs = _blobs_at(small, k, lo, hi, direction, min_speed, min_area, exclude, depth)
-        if blobs is None:
-            return None
-        grown, used = [], set()
-        for chain in chains:
-            match = [j for j, bl in enumerate(blobs) if _extends(chain, bl, direction, gate)]
-            if match:
-                j = max(match, key=lambda j: blobs[j].area)
-                used.add(j)
-                grown.append(chain + [blobs[j]])
-        grown += [[bl] for j, bl in enumerate(blobs) if j not in used and not bl.border]
-        for chain in grown:
-            if len(chain) >= run and _on_path(chain, direction):
-                return _follow_on(small, chain, k, lo, hi, direction, min_speed, min_area, exclude, gate, away,
-                                  depth)
-        chains = [c for c in grown if len(c) < run or _on_path(c, direction)]
-    return None
-
-
-def _follow_on(small: _Small, chain: list[_Blob], k: int, lo, hi, direction, min_speed, min_area, exclude, gate,
-               away: float, depth: float) -> _Start:
-    """:class:`_Start` of a confirmed ``chain`` whose last blob is in frame ``k``, extended
-    until it is ``away`` small px from its first blob."""
-    k_first = k - len(chain) + 1
-    while np.linalg.norm(chain[-1].centroid - chain[0].centroid) < away and k + 1 < len(small.gray) - 1 \
-            and k < k_first + len(chain) + 20:
-        blobs = _blobs_at(small, k + 1, lo, hi, direction, min_speed, min_area, exclude, depth)
-        match = [bl for bl in blobs or [] if _extends(chain, bl, direction, gate)]
-        if not match:
-            break
-        chain = chain + [max(match, key=lambda bl: bl.area)]
-        k += 1
-    return _Start(k_first, chain[0].centroid, k, chain[-1].front)
 
 
 def _diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -238,7 +59,7 @@ def silhouette_centre(pre: np.ndarray, background: np.ndarray, rough, window: Wi
     if not np.all(np.isfinite(rough)):  # a track that lost the object there
         return None
     radius = _crop_radius(window) + (0 if reach is None else int(math.ceil(reach)))  # the object well inside
-    lo, hi = _roi_box(background.shape[:2], rough, radius)
+    lo, hi = roi_box(background.shape[:2], rough, radius)
     if np.any(hi - lo < 3):  # ``rough`` outside the image: nothing to see (and OpenCV asserts on empty arrays)
         return None
     crop = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
@@ -484,7 +305,7 @@ def locate_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
         TrackingError: nothing moves down the ramp (object 1 never moves, or is not seen
             to), or object 1 cannot be tracked.
     """
-    small = _downscale(frames)
+    small = downscale(frames)
     wins = object_windows(scene, calib)
     bg = background_model(frames) if background is None else background
     prior = expected_start_pixels(scene, calib) if scene.camera.foot_pixel is not None else None
@@ -519,7 +340,7 @@ def locate_objects(frames: np.ndarray, scene: Scene, calib: Calibration,
     return Located(np.array(out), k_start, np.array(clean), k_far)
 
 
-def _rest_frame(small: _Small, k: int, centre, window: Window, direction: np.ndarray) -> int:
+def _rest_frame(small: Small, k: int, centre, window: Window, direction: np.ndarray) -> int:
     """The last frame, going back from ``k``, in which the object at ``centre`` (px) is still
     at rest: fewer than 15% of its footprint's pixels flow down its path (> 0.3 px/frame
     at the working scale) into the next frame. A smooth or low-contrast object (an air-track
@@ -533,7 +354,7 @@ def _rest_frame(small: _Small, k: int, centre, window: Window, direction: np.nda
     inside = region[lo[1]:hi[1], lo[0]:hi[0]]
     cos = math.cos(math.radians(MAX_ANGLE_DEG))
     for j in range(k - 1, -1, -1):
-        flow = _flow(small.gray[j, lo[1]:hi[1], lo[0]:hi[0]], small.gray[j + 1, lo[1]:hi[1], lo[0]:hi[0]])
+        flow = dense_flow(small.gray[j, lo[1]:hi[1], lo[0]:hi[0]], small.gray[j + 1, lo[1]:hi[1], lo[0]:hi[0]])
         along = flow @ direction
         moving = (along > 0.3) & (along >= cos * np.linalg.norm(flow, axis=-1))
         if moving[inside].mean() < 0.15:
@@ -541,11 +362,11 @@ def _rest_frame(small: _Small, k: int, centre, window: Window, direction: np.nda
     return 0
 
 
-def _min_area(small: _Small, window: Window) -> float:
+def _min_area(small: Small, window: Window) -> float:
     return max(6.0, 0.25 * 4 * window.half[0] * window.half[1] * small.f ** 2)
 
 
-def _find_first(small: _Small, scene, calib, window: Window, prior) -> tuple[np.ndarray, int, np.ndarray, int]:
+def _find_first(small: Small, scene, calib, window: Window, prior) -> tuple[np.ndarray, int, np.ndarray, int]:
     """Object 1's rough centre (px) and the frame its steady motion starts; and its rough
     centre in a frame a diagonal further on (clear of a hand that held it), and that frame."""
     direction = path_direction(scene, calib, 0)
@@ -554,9 +375,9 @@ def _find_first(small: _Small, scene, calib, window: Window, prior) -> tuple[np.
     found = None
     if prior is not None:
         radius = max(3 * max(window.half), 0.1 * calib.scale) * small.f
-        found = _first_motion(small, direction, small.to_small(prior[0]), radius, area, **kw)
+        found = first_motion(small, direction, small.to_small(prior[0]), radius, area, **kw)
     if found is None:
-        found = _first_motion(small, direction, None, None, area, **kw)
+        found = first_motion(small, direction, None, None, area, **kw)
     if found is None:
         raise never_moves_error(scene)
     rough = small.to_full(found.centroid)
@@ -565,7 +386,7 @@ def _find_first(small: _Small, scene, calib, window: Window, prior) -> tuple[np.
     return rough, found.k, small.to_full(found.centroid_far), found.k_far
 
 
-def _footprints(track: np.ndarray, window: Window, small: _Small):
+def _footprints(track: np.ndarray, window: Window, small: Small):
     """``mask(k)``: (h, w) bool, the downscaled pixels covered by an object whose centre
     follows ``track`` (N, 2) px, its rectangle turned to its direction of motion, plus a
     margin for the spread of dense flow."""
@@ -588,7 +409,7 @@ def _footprints(track: np.ndarray, window: Window, small: _Small):
     return mask
 
 
-def _change_onset(small: _Small, centre, window: Window, k_start: int, exclude) -> int | None:
+def _change_onset(small: Small, centre, window: Window, k_start: int, exclude) -> int | None:
     """First frame k > ``k_start`` at which at least a fifth of the object's footprint
     around ``centre`` (px) changes from frame k-1, and again from k to k+1 (pixels that
     ``exclude(k)`` marks are ignored). Changes, not flow: object 2 is set moving by an impact
@@ -610,7 +431,7 @@ def _change_onset(small: _Small, centre, window: Window, k_start: int, exclude) 
     return None
 
 
-def _find_second(frames, small: _Small, scene, calib, wins, p1, track1, k1, prior, bg) -> tuple[np.ndarray, int | None]:
+def _find_second(frames, small: Small, scene, calib, wins, p1, track1, k1, prior, bg) -> tuple[np.ndarray, int | None]:
     """Object 2's start pixel (see :func:`find_objects`) and the frame it starts to change
     (None if it never does); ``track1`` (N, 2) object 1's pixels."""
     expected = prior[1] if prior is not None else expected_start_pixels(scene, calib, p1)[1]

@@ -1,1 +1,3 @@
-"""Reporting at the edge: console summary, JSON result, figures, overlay video."""
+"""Reporting at the edge: console summary (``console.py``), a fit's files (``fit_files.py``:
+``result.json``, ``posterior.nc``, figures, overlay), atomic JSON and netCDF writes
+(``results.py``), figures (``figures.py``) and the overlay video (``overlay.py``)."""

@@ -80,7 +80,7 @@ def _footer_lines(outputs: dict, elapsed: float | None) -> list[str]:
 
 
 def _adequacy_lines(adequacy: dict, video, scene) -> list[str]:
-    """The fit-adequacy verdict (:func:`galileo_jax.criticism.residuals.adequacy`) and, where the residuals
+    """The fit-adequacy verdict (:func:`galileo_jax.criticism.adequacy.adequacy`) and, where the residuals
     are structured, where to look next."""
     if not adequacy:
         return []

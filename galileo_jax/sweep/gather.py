@@ -14,7 +14,6 @@ folder and writes ``BASE.md`` and ``BASE.json`` atomically (default ``SWEEP_DIR/
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
