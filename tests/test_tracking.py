@@ -731,8 +731,35 @@ def test_objects_out_of_their_order_are_not_measured():
                        [[44.0, 30.0], [56.0, 30.0]],   # touching, in order
                        [[60.0, 30.0], [52.0, 30.0]],   # object 1 past object 2
                        [[52.0, 30.0], [52.0, 30.0]]])  # one on the other
-    ok = _in_order(pixels, start)
+    measured = np.ones((4, 2), bool)
+    ok = _in_order(pixels, start, measured)
     assert ok[:2].all() and not ok[2:].any()
+    # where one of them is not measured, its position (the rough track's, which may have left it
+    # for the other object) judges nothing
+    measured[2, 0] = measured[3, 1] = False
+    assert _in_order(pixels, start, measured).all()
+
+
+def test_look_alikes_swapped_at_a_collision_are_exchanged_back():
+    """Both measured, apart, and in the reverse of their start's order: the same two objects with
+    their identities swapped, so their measurements are exchanged (pixels, quality, aligned);
+    one on the other (not apart) or one not measured is left for the order check to drop."""
+    from galileo_jax.observe.matte import _restore_order
+
+    start = np.array([[10.0, 10.0], [50.0, 30.0]])
+    pixels = np.array([[[44.0, 30.0], [56.0, 30.0]],   # in order
+                       [[70.0, 30.0], [58.0, 30.0]],   # swapped, 12 px apart
+                       [[58.0, 30.0], [56.0, 30.0]],   # one on the other
+                       [[80.0, 30.0], [60.0, 30.0]]])  # swapped, object 2 not measured
+    quality = np.array([[0.9, 0.8], [0.9, 0.8], [0.9, 0.8], [0.9, 0.1]])
+    aligned = np.array([[True, False]] * 4)
+    out = pixels.copy(), quality.copy(), aligned.copy()
+    exchanged = _restore_order(*out, start, [np.array([6.0, 5.0])] * 2, 0.5)
+    assert exchanged.tolist() == [[False, False], [True, True], [False, False], [False, False]]
+    np.testing.assert_array_equal(out[0][1], pixels[1, ::-1])
+    np.testing.assert_array_equal(out[1][1], quality[1, ::-1])
+    np.testing.assert_array_equal(out[2][1], aligned[1, ::-1])
+    np.testing.assert_array_equal(out[0][[0, 2, 3]], pixels[[0, 2, 3]])
 
 
 @pytest.mark.parametrize("direction", ["right", "left"])
