@@ -60,6 +60,14 @@ from galileo_jax.scene import Scene
 #: known; the simulated dynamics depend on the masses only through their ratio.
 REFERENCE_TOTAL_MASS = 2.0 * NOMINAL_MASS
 
+#: Largest |phi| simulated (a mass ratio of about 2000): the default mass prior (0, 1) kg allows
+#: phi in (-1, 1), and a draw at |phi| = 1 (a wide posterior's Gauss-Newton draws saturate there)
+#: gives an object of zero mass, which MuJoCo cannot simulate ("inertia matrix is too close to
+#: singular"; the object then never moved, and a held-out render's predicted rest positions
+#: came out as the start positions, an interval that left out the estimate). Beyond this the
+#: lighter object's mass no longer changes the motion.
+PHI_SIMULATED_MAX = 0.999
+
 
 @dataclass(frozen=True)
 class ParamSpace:
@@ -275,7 +283,7 @@ class ParamSpace:
         """Simulator parameters for ``theta`` (..., d).
 
         Known values come from the scene. With phi, masses are REFERENCE_TOTAL_MASS * (1 +- phi) / 2
-        (only the ratio matters). Without a mass parameter, free masses take the nominal mass.
+        (only the ratio matters; |phi| at most :data:`PHI_SIMULATED_MAX`). Without a mass parameter, free masses take the nominal mass.
 
         Returns:
             :class:`PhysParams` with ``mass`` and ``friction`` of shape (..., n_objects).
@@ -290,7 +298,7 @@ class ParamSpace:
             elif kind == "mass":
                 mass[i] = theta[..., j]
             elif kind == "phi":
-                phi = theta[..., j]
+                phi = jnp.clip(theta[..., j], -PHI_SIMULATED_MAX, PHI_SIMULATED_MAX)
                 mass[0] = REFERENCE_TOTAL_MASS * (1.0 + phi) / 2.0
                 mass[1] = REFERENCE_TOTAL_MASS * (1.0 - phi) / 2.0
         effects = theta[..., self.effect_slice] if self.effects else None

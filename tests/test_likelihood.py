@@ -185,6 +185,23 @@ def test_param_space_layouts():
     assert draws.min() >= -0.2 and draws.max() <= 0.2 and stats.kstest((draws + 0.2) / 0.4, "uniform").pvalue > 1e-3
 
 
+def test_phi_at_its_bounds_gives_masses_mujoco_can_simulate():
+    """The default mass prior (0, 1) kg allows phi in (-1, 1); a draw at phi = +-1 (saturated
+    Gauss-Newton draws of a wide posterior) must not give an object of zero mass, which MuJoCo
+    cannot simulate: |phi| is clipped to PHI_SIMULATED_MAX, and inside it nothing changes."""
+    from galileo_jax.params import PHI_SIMULATED_MAX, REFERENCE_TOTAL_MASS
+
+    sp = ParamSpace.from_scene(_scene([BOX1, BOX2]))
+    j = sp.index("phi")
+    theta = np.tile([0.2, 0.3, 0.0], (4, 1))
+    theta[:, j] = [-1.0, 1.0, 0.5, -PHI_SIMULATED_MAX]
+    mass = np.asarray(sp.physical(jnp.asarray(theta)).mass)
+    assert mass.min() > 0.0
+    assert np.allclose(mass[1], REFERENCE_TOTAL_MASS * np.array([1 + PHI_SIMULATED_MAX, 1 - PHI_SIMULATED_MAX]) / 2)
+    assert np.allclose(mass[0], mass[1, ::-1]) and np.allclose(mass[0], mass[3])
+    assert np.allclose(mass[2], REFERENCE_TOTAL_MASS * np.array([0.75, 0.25]))
+
+
 def test_phi_prior_is_induced_by_uniform_masses():
     sp = ParamSpace.from_scene(_scene([BOX1, BOX2]))
     j = sp.index("phi")

@@ -446,3 +446,28 @@ def test_track_not_measured_in_its_anchor_frame_still_gives_positions(clip):
     assert np.isfinite(obs.positions[3:]).all() and np.isfinite(obs.position_sd).all()
     assert np.allclose(obs.positions[3:], ref.positions[3:], atol=1e-9)  # object 1 rests until frame 7
     assert obs.release_time == pytest.approx(ref.release_time, abs=1e-4)  # 0.3% of a frame: 3 fewer samples
+
+
+def test_objects_never_measured_together_get_a_tracking_error(clip):
+    """Where the tracker measured each object only in frames in which the other was not (one
+    lost at a collision, the other never measured at rest: a held-out render), no velocity
+    sample has both; the user gets a one-line tracking error that names the counts, not the
+    likelihood's "widen the fit window"."""
+    from galileo_jax.observe.profile import observation_from_tracks
+    from galileo_jax.observe.tracks import Tracks
+
+    scene = synthetic_scene(start_pixels=clip.pixels[0])
+    N, n = clip.pixels.shape[:2]
+    valid = np.zeros((N, n), bool)
+    valid[: N // 2, 0] = True
+    valid[N // 2:, 1] = True
+    tracks = Tracks(clip.pixels.copy(), valid, valid.astype(int), valid.astype(float))
+    with pytest.raises(TrackingError, match=rf"no two consecutive frames in which every object was measured "
+                                            rf"\(object 1 in {N // 2}, object 2 in {N - N // 2} of {N} frames\)"
+                       ) as err:
+        observation_from_tracks(tracks, scene, FPS)
+    assert "\n" not in str(err.value)
+    valid[N // 2 - 2: N // 2 + 2] = True  # four frames with both: a velocity sample, no error
+    both = tracks._replace(valid=valid, quality=valid.astype(float))
+    assert observation_from_tracks(both, scene, FPS).mask.sum() >= 1
+

@@ -18,10 +18,17 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from galileo_jax.calibration import calibration
+from galileo_jax.errors import TrackingError
 from galileo_jax.observation import Observation, TrackingInfo, profile_from_positions
 from galileo_jax.observe.find import locate_objects, never_moves_error
 from galileo_jax.observe.track import SceneTracks, track_scene
-from galileo_jax.observe.tracks import QUALITY_MIN, Tracks, background_model, estimate_noise_sd, path_direction
+from galileo_jax.observe.tracks import (
+    QUALITY_MIN,
+    Tracks,
+    background_model,
+    estimate_noise_sd,
+    path_direction,
+)
 from galileo_jax.observe.video import VideoClip, read_video
 from galileo_jax.physics.model import object_start_pose
 from galileo_jax.scene import Scene
@@ -217,7 +224,8 @@ def observation_from_tracks(tracks: Tracks | SceneTracks, scene: Scene, fps: flo
     count as not measured (left out of the fit and of the noise estimate).
 
     Raises:
-        TrackingError: object 1 never moves.
+        TrackingError: object 1 never moves, or no two consecutive frames have every object
+            measured (no velocity sample the fit could use).
     """
     info = None
     if isinstance(tracks, SceneTracks):
@@ -241,6 +249,12 @@ def observation_from_tracks(tracks: Tracks | SceneTracks, scene: Scene, fps: flo
             release = estimate_release_time(s, fps, sigma_px, s_max)
     if release is None or not moved[0]:
         raise never_moves_error(scene)
+    together = valid.all(axis=1)
+    if n > 1 and not (together[:-1] & together[1:]).any():
+        counts = ", ".join(f"object {i + 1} in {int(valid[:, i].sum())}" for i in range(n))
+        raise TrackingError(f"no two consecutive frames in which every object was measured ({counts} of {N} "
+                            "frames), so no velocity can be fitted: the tracker lost an object; give "
+                            "camera.start_pixels in the scene file, or film against a background of another colour")
     return Observation(
         frame_times=times, positions=positions, pixels=pixels,
         profile=profile_from_positions(positions, times), position_sd=sd,
