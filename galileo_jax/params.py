@@ -283,7 +283,8 @@ class ParamSpace:
         """Simulator parameters for ``theta`` (..., d).
 
         Known values come from the scene. With phi, masses are REFERENCE_TOTAL_MASS * (1 +- phi) / 2
-        (only the ratio matters; |phi| at most :data:`PHI_SIMULATED_MAX`). Without a mass parameter, free masses take the nominal mass.
+        (only the ratio matters; |phi| at most :data:`PHI_SIMULATED_MAX`). Without a mass parameter,
+        free masses take the nominal mass.
 
         Returns:
             :class:`PhysParams` with ``mass`` and ``friction`` of shape (..., n_objects).
