@@ -350,7 +350,6 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
         px = np.where((quality >= quality_min)[..., None], pixels, px)
     if measure_frames is None:
         _bridge(frames, bg, looks, pixels, quality, aligned, halves, angles, quality_min)
-    if measure_frames is None:
         _restore_order(pixels, quality, aligned, start, halves, quality_min)
     measured = quality >= quality_min
     valid = _not_isolated(measured & _in_order(pixels, start, measured))
@@ -424,14 +423,19 @@ def _restore_order(pixels: np.ndarray, quality: np.ndarray, aligned: np.ndarray,
     exchanged = np.zeros((N, n), bool)
     for i in range(n):
         for j in range(i + 1, n):
-            axis = start[j] - start[i]
             apart = np.linalg.norm(pixels[:, j] - pixels[:, i], axis=-1) > max(min(halves[i]), min(halves[j]))
             swapped = ((quality[:, i] >= quality_min) & (quality[:, j] >= quality_min) & apart
-                       & (np.einsum("kc,c->k", pixels[:, j] - pixels[:, i], axis) < 0.0))
+                       & (_along_start(pixels, start, i, j) < 0.0))
             for a in (pixels, quality, aligned):
                 a[swapped, i], a[swapped, j] = a[swapped, j].copy(), a[swapped, i].copy()
             exchanged[swapped, i] = exchanged[swapped, j] = True
     return exchanged
+
+
+def _along_start(pixels: np.ndarray, start: np.ndarray, i: int, j: int) -> np.ndarray:
+    """(N,) per frame the vector from object ``i`` to object ``j`` (``pixels`` (N, n, 2)) dotted
+    with the one between their ``start`` (n, 2) positions: negative once their order reversed."""
+    return np.einsum("kc,c->k", pixels[:, j] - pixels[:, i], start[j] - start[i])
 
 
 def _in_order(pixels: np.ndarray, start: np.ndarray, measured: np.ndarray) -> np.ndarray:
@@ -448,8 +452,7 @@ def _in_order(pixels: np.ndarray, start: np.ndarray, measured: np.ndarray) -> np
     ok = np.ones((N, n), bool)
     for i in range(n):
         for j in range(i + 1, n):
-            swapped = np.einsum("kc,c->k", pixels[:, j] - pixels[:, i], start[j] - start[i]) <= 0.0
-            swapped &= measured[:, i] & measured[:, j]
+            swapped = (_along_start(pixels, start, i, j) <= 0.0) & measured[:, i] & measured[:, j]
             ok[swapped, i] = ok[swapped, j] = False
     return ok
 
