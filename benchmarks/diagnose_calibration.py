@@ -211,8 +211,8 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
             "noise_floor": d["noise_floor"], "rmse_drop_factor": d["rmse_base"] / max(d["rmse_final"], 1e-12),
             "final_over_floor": d["rmse_ratio_to_floor"], "attainable_rmse": attainable,
             "final_over_attainable": d["rmse_final"] / attainable,
-            "refits": [{k: x.get(k) for k in ("effect", "engine", "delta_loglik", "lr_scaled", "p_value", "rmse_after",
-                                              "supported")}
+            "refits": [{k: getattr(x, k) for k in ("effect", "engine", "delta_loglik", "lr_scaled", "p_value",
+                                                   "rmse_after", "supported")}
                        for x in (diag.rounds[0].refits if diag.rounds else [])],
             "screen": screen, "verdict_base": d["verdict_base"], "verdict_final": d["verdict_final"],
             "fitted": {f.name: {n: [float(v), float(lo), float(hi)] for n, v, (lo, hi) in

@@ -263,14 +263,14 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
         assert diag.fits[0].union.engine == "mujoco" and diag.final.union.engine == "mjx"
         assert rnd.engines == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
         assert [t["engine"] for t in rnd.transfers] == ["mjx"]
-        assert {x["effect"]: x["engine"] for x in rnd.refits} == rnd.engines
+        assert {x.effect: x.engine for x in rnd.refits} == rnd.engines
         # each model's log-likelihood gain is read against the base model on its own engine
         ref = base_loglik_by_engine(diag)
         assert set(ref) == {"mujoco", "mjx"}
         for x in rnd.refits:  # the named model's test was before its polish (a second search)
-            fit = diag.fits[x["fit_index"]]
+            fit = diag.fits[x.fit_index]
             tested = fit.polish["loglik_lm"] if getattr(fit, "polish", None) else fit.loglik
-            assert tested - ref[x["engine"]] == pytest.approx(x["delta_loglik"])
+            assert tested - ref[x.engine] == pytest.approx(x.delta_loglik)
     fitted = diag.final.summary["parameters"]["drag_cubic"]
     assert fitted["interval90"][0] - 0.3 < 3.0 < fitted["interval90"][1] + 0.3
     assert d["rmse_final"] < 0.5 * d["rmse_base"]
@@ -419,7 +419,8 @@ def test_nested_refit_never_tests_below_the_null():
     fits = [fit(r1, ("k1", name), 0.08)]
     assert fits[0].loglik > current.loglik
     test = test_effect(current, effect, fits, 0, 1e-3, DiagnoseSettings())
-    assert test["lr_scaled"] == 0.0 and test["lr"] == 0.0 and not test["supported"]
+    assert test.lr_scaled == 0.0 and test.lr == 0.0 and not test.supported
+    assert "vuong_p_vs_winner" not in test.as_dict() and test.as_dict()["fit_index"] == 0
     shown = fits[0].summary["parameters"][name]
     assert shown["best"] == effect.params[0].neutral and "scaled likelihood ratio was -" in shown["note"]
 
@@ -568,7 +569,7 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     def fits(rmse):
         return [SimpleNamespace(name="base", rmse=rmse, criticism={"verdict": "fails on the ramp"})]
 
-    rounds = [Round(1, "base", 0.008, refits=[{"effect": "quadratic_drag", "p_value": 1e-35, "rmse_drop": 0.01}])]
+    rounds = [Round(1, "base", 0.008, refits=[SimpleNamespace(effect="quadratic_drag", p_value=1e-35, rmse_drop=0.01)])]
     d = _decision(fits(0.024), rounds, [], 0, 0.004, 0.008, 1.3)
     assert d["unexplained_misfit"] and d["missing_effects"] == []
     assert d["message"].startswith("No candidate effect explains the misfit: the model misfits at 6.0x the noise floor")
@@ -584,7 +585,8 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     # the candidate passed its test (p 1e-35): what rules it out is its small gain, not chance
     assert "by enough to count" in d["message"] and "beyond chance" not in d["message"], d["message"]
     assert "under the 10% that counts" in d["message"], d["message"]
-    rounds_chance = [Round(1, "base", 0.008, refits=[{"effect": "quadratic_drag", "p_value": 0.2, "rmse_drop": 0.01}])]
+    rounds_chance = [Round(1, "base", 0.008, refits=[SimpleNamespace(effect="quadratic_drag", p_value=0.2,
+                                                                      rmse_drop=0.01)])]
     assert "beyond chance" in _decision(noisy, rounds_chance, [], 0, 0.004, 0.008, 1.3)["message"]
 
 
@@ -632,13 +634,15 @@ def test_adequate_improved_null_does_not_wave_through_a_clear_gain():
 
     settings = DiagnoseSettings()
     drag = SimpleNamespace(rmse=0.0080)
-    tests = [{"effect": "linear_drag", "supported": True, "rmse_after": 0.0052},
-             {"effect": "ramp_friction", "supported": False, "rmse_after": 0.0080}]
+    def test(effect, supported, rmse_after):
+        return SimpleNamespace(effect=effect, supported=supported, rmse_after=rmse_after)
+
+    tests = [test("linear_drag", True, 0.0052), test("ramp_friction", False, 0.0080)]
     assert clear_gain(tests, drag, settings)
     # the same drop without support (p above the threshold) is no reason to go on
-    assert not clear_gain([dict(tests[0], supported=False)], drag, settings)
+    assert not clear_gain([test("linear_drag", False, 0.0052)], drag, settings)
     clean = SimpleNamespace(rmse=0.0081)
-    assert not clear_gain([{"effect": "velocity_friction", "supported": True, "rmse_after": 0.0085},
-                           {"effect": "quadratic_drag", "supported": True, "rmse_after": 0.0086}], clean, settings)
+    assert not clear_gain([test("velocity_friction", True, 0.0085), test("quadratic_drag", True, 0.0086)], clean,
+                          settings)
     # a drop just under min_rmse_drop does not count
-    assert not clear_gain([{"effect": "linear_drag", "supported": True, "rmse_after": 0.0081 * 0.91}], clean, settings)
+    assert not clear_gain([test("linear_drag", True, 0.0081 * 0.91)], clean, settings)

@@ -371,23 +371,23 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
                 current = fits[final_index] = better[0]
         if improved:  # the tests so far were against a null stuck in a worse optimum: refit from it, redo them
             for j, x in enumerate(tests):
-                effect = available_effects()[x["effect"]]
-                u = fits[x["fit_index"]].union
+                effect = available_effects()[x.effect]
+                u = fits[x.fit_index].union
                 if not effect.params or id(u) not in improved:
                     continue
                 say(f"refitting with {effect.name} from the improved {current.name} model")
-                if refit_from_null(u, currents[id(u)], effect, fits, x["fit_index"], screen, added, settings,
+                if refit_from_null(u, currents[id(u)], effect, fits, x.fit_index, screen, added, settings,
                                    jax.random.fold_in(key, 100 * rnd + 60 + j)):
                     improved[id(u)]["alternatives_improved"].append(effect.name)
-            tests = [test_effect(base_of(available_effects()[x["effect"]]), available_effects()[x["effect"]], fits,
-                                 x["fit_index"], threshold, settings) for x in tests]
+            tests = [test_effect(base_of(available_effects()[x.effect]), available_effects()[x.effect], fits,
+                                 x.fit_index, threshold, settings) for x in tests]
         timings[f"round{rnd + 1}_null_refits_s"] = time.perf_counter() - t
         if improved:
             done = adequate_round(dataclasses.replace(rnd_info, refits=tests), current, observations, masks, floor, settings)
             if done is not None and not clear_gain(tests, current, settings):
                 rounds.append(done)
                 break
-        supported = sorted([x for x in tests if x["supported"]], key=lambda x: -x["delta_loglik"])
+        supported = sorted([x for x in tests if x.supported], key=lambda x: -x.delta_loglik)
         rnd_info.refits = tests
         if not supported:
             rounds.append(rnd_info)
@@ -395,20 +395,20 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         win = supported[0]
         tied = [x for x in supported[1:] if indistinguishable(win, x, fits, current.union, settings)]
         if tied:
-            names = [win["effect"]] + [x["effect"] for x in tied]
+            names = [win.effect] + [x.effect for x in tied]
             how = ", ".join(f"{available_effects()[n].evidence} ({n})" for n in names)
-            rmses = " / ".join("%.4f" % x["rmse_after"] for x in [win] + tied)
+            rmses = " / ".join("%.4f" % x.rmse_after for x in [win] + tied)
             rnd_info.indistinguishable = {
-                "effects": names, "vuong_p": [x["vuong_p_vs_winner"] for x in tied],
+                "effects": names, "vuong_p": [x.vuong_p_vs_winner for x in tied],
                 "message": (f"{' and '.join(names)} explain this video about equally well (RMSE {rmses} m/s); "
                             f"to separate them measure {how}")}
-        rnd_info.winner = win["effect"]
+        rnd_info.winner = win.effect
         rounds.append(rnd_info)
-        added.append(win["effect"])
-        say(f"polishing the fit with {win['effect']}")
-        fits[win["fit_index"]] = polish(fits[win["fit_index"]], settings, jax.random.fold_in(key, 100 * rnd + 98))
-        current = fits[win["fit_index"]]
-        final_index = win["fit_index"]
+        added.append(win.effect)
+        say(f"polishing the fit with {win.effect}")
+        fits[win.fit_index] = polish(fits[win.fit_index], settings, jax.random.fold_in(key, 100 * rnd + 98))
+        current = fits[win.fit_index]
+        final_index = win.fit_index
     timings["total_s"] = time.perf_counter() - t0
     decision = _decision(fits, rounds, added, final_index, floor, threshold, settings.adequate_ratio,
                          settings.min_rmse_drop)
@@ -475,15 +475,15 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
     elif not added:
         best = None
         if rounds and rounds[0].refits:
-            best = min(rounds[0].refits, key=lambda x: x["p_value"])
-        passed = best is not None and best["p_value"] <= threshold
+            best = min(rounds[0].refits, key=lambda x: x.p_value)
+        passed = best is not None and best.p_value <= threshold
         if passed:  # a significant but small gain: chance is not what rules it out
-            why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} passes its test (threshold "
-                   f"{threshold:.2g}) but lowers the RMSE by only {100 * best['rmse_drop']:.0f}%, under the "
+            why = (f" (best candidate {best.effect}: p = {best.p_value:.2g} passes its test (threshold "
+                   f"{threshold:.2g}) but lowers the RMSE by only {100 * best.rmse_drop:.0f}%, under the "
                    f"{100 * min_rmse_drop:.0f}% that counts)")
         elif best is not None:
-            why = (f" (best candidate {best['effect']}: p = {best['p_value']:.2g} vs threshold {threshold:.2g}, "
-                   f"RMSE drop {100 * best['rmse_drop']:.0f}%)")
+            why = (f" (best candidate {best.effect}: p = {best.p_value:.2g} vs threshold {threshold:.2g}, "
+                   f"RMSE drop {100 * best.rmse_drop:.0f}%)")
         else:
             why = ""
         ratio = base.rmse / floor if floor > 0 else float("nan")

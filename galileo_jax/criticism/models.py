@@ -9,7 +9,7 @@ each step is there).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import jax
 import numpy as np
@@ -51,6 +51,57 @@ class VideoFit:
 
 
 @dataclass
+class EffectTest:
+    """One refitted effect tested against the current model
+    (:func:`~galileo_jax.criticism.nested.compare`, :func:`~galileo_jax.criticism.nested.test_effect`;
+    JSON through :meth:`as_dict`).
+
+    Attributes:
+        effect: the effect's name; model: the refitted model's name.
+        lr: 2 (log L_alt - log L_current) in the fit's likelihood (nats x 2).
+        lr_scaled: the likelihood ratio on the test likelihood with per-trace noise scales
+            (:func:`~galileo_jax.inference.screen.scaled_lr`); dispersion: those scales per trace.
+        delta_loglik: log L_alt - log L_current (nats).
+        p_value: the test's p-value; test: which test ("likelihood ratio, chi2(k)", "Vuong ...").
+        vuong_z: Vuong's statistic for a structural effect (None for a nested test).
+        rmse_before, rmse_after: RMSE (m/s) of the current and the refitted model; rmse_drop:
+            1 - rmse_after / rmse_before.
+        parameters: the effect's parameters in the refit's summary.
+        looks_like_noise: the refit's residuals look like noise.
+        fit_index: the refit's index in ``Diagnosis.fits``; engine: the engine it ran on.
+        supported: p below the round's threshold and an RMSE drop of at least ``min_rmse_drop``.
+        vuong_p_vs_winner: for a supported effect other than the winner, Vuong's p against the
+            winner (:func:`~galileo_jax.criticism.nested.indistinguishable`), else None.
+    """
+
+    effect: str
+    model: str
+    lr: float
+    lr_scaled: float
+    dispersion: list
+    delta_loglik: float
+    p_value: float
+    test: str
+    vuong_z: float | None
+    rmse_before: float
+    rmse_after: float
+    rmse_drop: float
+    parameters: dict
+    looks_like_noise: bool
+    fit_index: int = -1
+    engine: str = ""
+    supported: bool = False
+    vuong_p_vs_winner: float | None = None
+
+    def as_dict(self) -> dict:
+        """The JSON record (``vuong_p_vs_winner`` only where it was computed)."""
+        out = asdict(self)
+        if self.vuong_p_vs_winner is None:
+            del out["vuong_p_vs_winner"]
+        return out
+
+
+@dataclass
 class Round:
     """What one round of :func:`~galileo_jax.criticism.diagnosis.diagnose` did and found
     (``Diagnosis.rounds``; JSON through :meth:`as_dict`).
@@ -63,7 +114,7 @@ class Round:
             largest statistic first.
         engines: {effect: engine its model was fitted on}.
         transfers: the current model refitted on another engine (one dict each).
-        refits: each refitted effect's test (:func:`~galileo_jax.criticism.nested.test_effect`).
+        refits: each refitted effect's :class:`EffectTest` (:func:`~galileo_jax.criticism.nested.test_effect`).
         winner: the effect named in this round, or None.
         indistinguishable: {"effects", "vuong_p", "message"} when supported effects cannot be
             told apart, else None.
@@ -80,7 +131,7 @@ class Round:
     screen: list = field(default_factory=list)
     engines: dict = field(default_factory=dict)
     transfers: list = field(default_factory=list)
-    refits: list = field(default_factory=list)
+    refits: list[EffectTest] = field(default_factory=list)
     winner: str | None = None
     indistinguishable: dict | None = None
     adequate: bool = False
@@ -93,6 +144,7 @@ class Round:
         """The JSON record (``quiet`` and the calm RMSE only where they apply)."""
         out = {k: getattr(self, k) for k in ("round", "base", "threshold_p", "screen", "engines", "transfers",
                                               "refits", "winner", "indistinguishable", "adequate", "null_refit")}
+        out["refits"] = [t.as_dict() for t in self.refits]
         if self.quiet:
             out["quiet"] = True
         if self.calm_rmse is not None:

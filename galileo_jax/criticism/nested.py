@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 
 from galileo_jax.criticism import adequacy as rule
-from galileo_jax.criticism.models import ModelFit, Round, Union, base_name, fit_model
+from galileo_jax.criticism.models import EffectTest, ModelFit, Round, Union, base_name, fit_model
 from galileo_jax.criticism.screening import refit_init
 from galileo_jax.criticism.settings import DiagnoseSettings
 from galileo_jax.effects import Effect
@@ -61,11 +61,11 @@ def adequate_round(rnd: Round, current: ModelFit, observations, masks, floor: fl
     return dataclasses.replace(rnd, adequate=True, calm_rmse=rmse_calm, calm_fraction=fraction)
 
 
-def clear_gain(tests: list[dict], current: ModelFit, settings: DiagnoseSettings) -> bool:
+def clear_gain(tests: list[EffectTest], current: ModelFit, settings: DiagnoseSettings) -> bool:
     """Whether some supported test's fit (``rmse_after``, m/s) is at least
     ``settings.min_rmse_drop`` below ``current``'s RMSE: a fit that an adequate-looking model
     must not wave through (step 5 of :mod:`galileo_jax.criticism.diagnosis`)."""
-    return any(x["supported"] and x["rmse_after"] <= (1.0 - settings.min_rmse_drop) * current.rmse for x in tests)
+    return any(x.supported and x.rmse_after <= (1.0 - settings.min_rmse_drop) * current.rmse for x in tests)
 
 
 def quiet(current: ModelFit, screen: list[dict], candidates, settings: DiagnoseSettings, floor: float) -> bool:
@@ -104,7 +104,7 @@ def refit_from_null(union: Union, null: ModelFit, effect: Effect, fits: list[Mod
 
 
 def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_index: int, threshold: float,
-                settings: DiagnoseSettings) -> dict:
+                settings: DiagnoseSettings) -> EffectTest:
     """Test the refit ``fits[fit_index]`` (current + ``effect``) against ``current``
     (:func:`compare`): a refit that ended below ``current`` is first replaced in ``fits`` by
     :func:`nested_floor`, and so is one whose scaled likelihood ratio on the test likelihood
@@ -118,17 +118,17 @@ def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_ind
         alt = fits[fit_index] = nested_floor(current, alt, effect)
     n_coords = len(current.union.coords[effect.name]) if effect.params else 0
     test = compare(current, alt, effect, n_coords)
-    if effect.params and test["lr_scaled"] < 0.0:
+    if effect.params and test.lr_scaled < 0.0:
         alt = fits[fit_index] = nested_floor(current, alt, effect, why="its scaled likelihood ratio was %.1f"
-                                             % test["lr_scaled"])
+                                             % test.lr_scaled)
         test = compare(current, alt, effect, n_coords)
-    test["fit_index"] = fit_index
-    test["engine"] = alt.union.engine
-    test["supported"] = bool(test["p_value"] < threshold and test["rmse_drop"] >= settings.min_rmse_drop)
+    test.fit_index = fit_index
+    test.engine = alt.union.engine
+    test.supported = bool(test.p_value < threshold and test.rmse_drop >= settings.min_rmse_drop)
     return test
 
 
-def refit_null(union: Union, current: ModelFit, tests: list[dict], fits: list[ModelFit], added, settings,
+def refit_null(union: Union, current: ModelFit, tests: list[EffectTest], fits: list[ModelFit], added, settings,
                key) -> tuple[ModelFit, str] | None:
     """Refit the current model from the best alternative's estimate, its effect held neutral.
 
@@ -143,13 +143,13 @@ def refit_null(union: Union, current: ModelFit, tests: list[dict], fits: list[Mo
         (the better fit, the effect whose estimate it started from), or None when the current
         fit is already at least as good.
     """
-    cands = [x for x in tests if fits[x["fit_index"]].union is union and x["delta_loglik"] > 0]
+    cands = [x for x in tests if fits[x.fit_index].union is union and x.delta_loglik > 0]
     if not cands:
         return None
-    best = max(cands, key=lambda x: x["delta_loglik"])
-    new = fit_model(union, tuple(added), settings, key, init=np.asarray(fits[best["fit_index"]].result.theta),
+    best = max(cands, key=lambda x: x.delta_loglik)
+    new = fit_model(union, tuple(added), settings, key, init=np.asarray(fits[best.fit_index].result.theta),
                     starts=0)
-    return (new, best["effect"]) if new.loglik > current.loglik + 1e-6 else None
+    return (new, best.effect) if new.loglik > current.loglik + 1e-6 else None
 
 
 def nested_floor(current: ModelFit, alt: ModelFit, effect: Effect, why: str | None = None) -> ModelFit:
@@ -175,7 +175,7 @@ def nested_floor(current: ModelFit, alt: ModelFit, effect: Effect, why: str | No
                     current.test_residuals)
 
 
-def indistinguishable(win: dict, other: dict, fits: list[ModelFit], union: Union, settings: DiagnoseSettings) -> bool:
+def indistinguishable(win: EffectTest, other: EffectTest, fits: list[ModelFit], union: Union, settings: DiagnoseSettings) -> bool:
     """Whether the supported effect ``other`` cannot be told apart from the winner ``win``:
     Vuong's test between the two (on test residuals scaled by the two models' mean noise scale
     per trace) has p > ``settings.indistinct_p``, or the winner does not lower the RMSE by
@@ -183,12 +183,12 @@ def indistinguishable(win: dict, other: dict, fits: list[ModelFit], union: Union
     to be named at all). Measured on a rendered quadratic-drag video: quadratic drag, velocity
     friction and linear drag reached RMSE 0.0062 / 0.0060 / 0.0068 m/s, while a scaled LR of
     3916 vs 1675 and Vuong's test alone called velocity friction the clear winner."""
-    scale = np.sqrt(0.5 * (np.asarray(win["dispersion"]) + np.asarray(other["dispersion"])))
+    scale = np.sqrt(0.5 * (np.asarray(win.dispersion) + np.asarray(other.dispersion)))
     groups = union.residual_groups()
-    fa, fb = fits[win["fit_index"]], fits[other["fit_index"]]
+    fa, fb = fits[win.fit_index], fits[other.fit_index]
     _, p = vuong_test(test_residuals(fa) / scale[groups], test_residuals(fb) / scale[groups])
-    other["vuong_p_vs_winner"] = float(p)
-    return bool(p > settings.indistinct_p or win["rmse_after"] > (1.0 - settings.min_rmse_drop) * other["rmse_after"])
+    other.vuong_p_vs_winner = float(p)
+    return bool(p > settings.indistinct_p or win.rmse_after > (1.0 - settings.min_rmse_drop) * other.rmse_after)
 
 
 def test_residuals(fit: ModelFit) -> np.ndarray:
@@ -196,7 +196,7 @@ def test_residuals(fit: ModelFit) -> np.ndarray:
     return fit.residuals if fit.test_residuals is None else fit.test_residuals
 
 
-def compare(current: ModelFit, alt: ModelFit, effect: Effect, n_coords: int) -> dict:
+def compare(current: ModelFit, alt: ModelFit, effect: Effect, n_coords: int) -> EffectTest:
     """Test ``alt`` (= current + effect, ``n_coords`` more coordinates) against ``current`` on the
     test likelihood's residuals (the fit's before it is set up): LR with per-trace noise scales
     (:func:`~galileo_jax.inference.screen.scaled_lr`, boundary-corrected) for an effect with
@@ -214,9 +214,8 @@ def compare(current: ModelFit, alt: ModelFit, effect: Effect, n_coords: int) -> 
         z, p = vuong_test(r1, r0)
         test = "Vuong (non-nested)"
     params = {n: v for n, v in alt.summary["parameters"].items() if base_name(n) in {q.name for q in effect.params}}
-    return {"effect": effect.name, "model": alt.name, "lr": float(lr), "lr_scaled": float(lr_scaled),
-            "dispersion": [float(x) for x in dispersion],
-            "delta_loglik": float(alt.loglik - current.loglik),
-            "p_value": float(p), "test": test, "vuong_z": z, "rmse_before": current.rmse, "rmse_after": alt.rmse,
-            "rmse_drop": float(1.0 - alt.rmse / current.rmse) if current.rmse > 0 else 0.0,
-            "parameters": params, "looks_like_noise": bool(alt.criticism.get("looks_like_noise", False))}
+    return EffectTest(effect=effect.name, model=alt.name, lr=float(lr), lr_scaled=float(lr_scaled),
+                      dispersion=[float(x) for x in dispersion], delta_loglik=float(alt.loglik - current.loglik),
+                      p_value=float(p), test=test, vuong_z=z, rmse_before=current.rmse, rmse_after=alt.rmse,
+                      rmse_drop=float(1.0 - alt.rmse / current.rmse) if current.rmse > 0 else 0.0,
+                      parameters=params, looks_like_noise=bool(alt.criticism.get("looks_like_noise", False)))
