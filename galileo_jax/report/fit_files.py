@@ -16,18 +16,22 @@ from galileo_jax.report.figures import profile_figure, tracking_figure
 from galileo_jax.report.results import package_versions, write_json, write_netcdf
 
 
+def _profiles_png(path: Path, obs, simulated: np.ndarray, band: np.ndarray, title: str) -> str:
+    """The observed and simulated velocity profiles of ``obs`` (at the mid-times of its frame
+    intervals) with the 90% band, as ``path``; returns its path."""
+    times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
+    profile_figure(path, times, obs.profile, simulated, obs.velocity_sd, np.asarray(obs.mask, bool), band, title)
+    return str(path)
+
+
 def write_fit(report: FitReport, poses: np.ndarray, clip, out: Path, cfg: FitConfig, seed: int,
               overlay: bool, progress: bool) -> None:
     """Write a fit's files into ``out``; ``poses`` (N, n, 3): the simulated poses at the estimate
     (for the overlay)."""
     obs = report.observation
     out.mkdir(parents=True, exist_ok=True)
-    times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
-    fig = out / "profiles.png"
-    title = f"{report.video.name}: {report.method} fit, scene {report.scene.name}"
-    profile_figure(fig, times, obs.profile, report.simulated, obs.velocity_sd, np.asarray(obs.mask, bool),
-                   report.band, title)
-    report.outputs["figure"] = str(fig)
+    report.outputs["figure"] = _profiles_png(out / "profiles.png", obs, report.simulated, report.band,
+                                             f"{report.video.name}: {report.method} fit, scene {report.scene.name}")
     if obs.tracking is not None:
         from galileo_jax.observe.tracks import object_windows
 
@@ -87,11 +91,9 @@ def write_joint_fit(report: JointFitReport, out: Path, cfg: FitConfig, seed: int
     ``result.json``; ``shared``: the names of the parameters the videos share."""
     out.mkdir(parents=True, exist_ok=True)
     for j, (obs, video) in enumerate(zip(report.observations, report.videos)):
-        times = 0.5 * (obs.frame_times[:-1] + obs.frame_times[1:])
-        path = out / f"profiles_{j + 1}.png"
-        profile_figure(path, times, obs.profile, report.simulated[j], obs.velocity_sd, np.asarray(obs.mask, bool),
-                       report.bands[j], f"{video.name}: joint {report.method} fit of {len(report.videos)} videos")
-        report.outputs[f"profiles_{j + 1}"] = str(path)
+        report.outputs[f"profiles_{j + 1}"] = _profiles_png(
+            out / f"profiles_{j + 1}.png", obs, report.simulated[j], report.bands[j],
+            f"{video.name}: joint {report.method} fit of {len(report.videos)} videos")
     result = {
         "videos": [str(v) for v in report.videos], "scenes": [s.model_dump(mode="json") for s in report.scenes],
         "method": report.method, "shared": list(shared), "per_video": list(report.per_video),
