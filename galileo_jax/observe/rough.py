@@ -51,6 +51,10 @@ SHUTTER_VOTES = 3
 #: scenery (:func:`_match`; about 24 x 24 px: there the ring of background in its template is
 #: at least a sixth of it).
 COMPOSITE_AREA = 576
+#: Cost of leaving an object unplaced in a frame (:func:`_choose`), in units of the RMS above
+#: which a match is no match (:func:`_no_match`): only placements far off the path or the
+#: prediction cost more.
+MISS_COST = 5.0
 #: Turn (rad) of the template tried either way when the rough pass searches wider.
 WIDE_TURN = math.radians(15.0)
 
@@ -252,6 +256,10 @@ def rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_fr
     worse, three times wider. Motion-blurred looks are tried until the camera's shutter is
     known: the first :data:`SHUTTER_VOTES` fast frames (all objects together) decide whether
     blurred looks fit better than sharp ones; a sharp camera then matches sharp looks only. An
+    object touching another is also searched where a collision may leave it (:func:`_impacts`),
+    every move pays for leaving the path (:func:`_off_path`), and an object may be left unplaced
+    in a frame rather than put where it costs more than :data:`MISS_COST` poor matches
+    (:func:`_choose`). An
     object whose footprint would leave the image is followed no further.
 
     ``scenery``: (H, W, 3) float32 static scenery (:func:`static_scenery`; default computed here
@@ -306,18 +314,19 @@ def rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_fr
             near = _touching(i, px[prev, i], {}, px[prev], halves, gap=4.0 + float(np.linalg.norm(vel[i])))
             probing[i] = not near and shutter is None and float(np.linalg.norm(vel[i])) >= PROBE_SPEED
             options[i] = _candidates(frames[k], turned[i], pred, vel[i], halves[i], recent_rms[i][-10:],
-                                     blurred=not near, scenery=scenery, tilts=tilts, shutter=shutter)
+                                     blurred=not near, scenery=scenery, tilts=tilts, shutter=shutter,
+                                     impacts=_impacts(i, px[prev], vel, halves) if near else ())
         # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
         chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
-                         halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))})
+                         halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))},
+                         {i: MISS_COST * _no_match(recent_rms[i][-10:]) for i in options if len(recent_rms[i][-10:]) > 2})
         # 3. update (a match far worse than the recent ones is no match: the object is hidden)
         for i, opts in options.items():
             recent = recent_rms[i][-10:]
             # an object touching another shows less of its look (a face hidden by the other,
             # which the template's border also covers): its match may be twice as far off
             touching = i in chosen and _touching(i, chosen[i][0], chosen, px[k], halves)
-            if i in chosen and len(recent) > 2 and chosen[i][1] > (2.0 if touching else 1.0) * \
-                    (LOST_RMS * max(float(np.median(recent)), LOST_FLOOR) + 10.0):
+            if i in chosen and len(recent) > 2 and chosen[i][1] > (2.0 if touching else 1.0) * _no_match(recent):
                 del chosen[i]
 
             if i not in chosen:
@@ -361,6 +370,64 @@ def rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_fr
     return px, rms, verified, lost
 
 
+def _no_match(recent: list) -> float:
+    """The RMS difference (grey levels) above which a match is no match, given the ``recent``
+    ones (:data:`LOST_RMS`, :data:`LOST_FLOOR`)."""
+    return LOST_RMS * max(float(np.median(recent)), LOST_FLOOR) + 10.0
+
+
+def _off_path(step, tilts) -> float:
+    """Penalty (in units of the recent RMS) for a move ``step`` (2,) px that leaves the path: its
+    part across the nearest direction within the fan of the path's ``tilts`` (rad; lines, so
+    either way along them: a rebound), over 2 px plus a tenth of the move, squared. An object
+    slides along the ramp and the floor and turns from one to the other; it does not jump
+    across them (a poor match at an impact, where the look is blurred and half hidden, does).
+    0 without tilts or for a move under 3 px."""
+    length = float(np.linalg.norm(step))
+    if tilts is None or len(tilts) == 0 or length < 3.0:
+        return 0.0
+    a = math.atan2(step[1], step[0])
+    lines = [(t - tilts[0] + math.pi / 2) % math.pi - math.pi / 2 for t in tilts]  # as lines, near the first
+    lo, hi = min(lines), max(lines)
+    off = (a - tilts[0] - (lo + hi) / 2 + math.pi / 2) % math.pi - math.pi / 2  # from the fan's middle line
+    dev = max(abs(off) - (hi - lo) / 2, 0.0)
+    return (length * math.sin(min(dev, math.pi / 2)) / (2.0 + 0.1 * length)) ** 2
+
+
+def _impacts(i: int, prev: np.ndarray, vel: np.ndarray, halves) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Where object ``i`` may be in the next frame if it collides with another object ``j``
+    that it touches and is not moving away from (their centres ``prev`` (n, 2) px in the frame
+    before, velocities ``vel`` (n, 2) px per frame): a segment (its two ends, px) per such
+    object. The one running into the other (the faster towards it) stops at most where the
+    two touch end to end (half lengths ``halves[.][0]``), the other moved on by the other's
+    motion: a point. The one run into leaves with a velocity between its own v_i and 2 v_j -
+    v_i (in a collision along the line of centres, v_i + (1 + e) m_j / (m_i + m_j) (v_j -
+    v_i) for a restitution e in [0, 1] and any masses), and the frame's displacement, part
+    before and part after the impact, lies between the same two."""
+    out = []
+    for j in range(len(prev)):
+        d = prev[i] - prev[j]
+        if j == i or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-6:
+            continue
+        u = d / np.linalg.norm(d)  # from j to i
+        if float(np.dot(vel[i] - vel[j], u)) >= 2.0:  # parting
+            continue
+        if float(np.dot(vel[i], -u)) > float(np.dot(vel[j], u)):  # i runs into j
+            at = prev[j] + vel[j] + u * (halves[i][0] + halves[j][0])
+            out.append((at, at))
+        else:
+            out.append((prev[i] + vel[i], prev[i] + 2.0 * vel[j] - vel[i]))
+    return out
+
+
+def _to_segment(c, ends) -> float:
+    """Distance (px) from the point ``c`` to the segment between ``ends`` (two points)."""
+    a, b = np.asarray(ends[0], float), np.asarray(ends[1], float)
+    ab = b - a
+    t = float(np.clip(np.dot(np.asarray(c) - a, ab) / max(float(np.dot(ab, ab)), 1e-9), 0.0, 1.0))
+    return float(np.linalg.norm(np.asarray(c) - a - t * ab))
+
+
 def _touching(i: int, centre, chosen: dict, fixed: np.ndarray, halves, gap: float = 4.0) -> bool:
     """Whether object ``i`` at ``centre`` (px) is within ``gap`` px of touching another object,
     at its chosen candidate (``chosen``: {j: (centre, ...)}) or else at its position in
@@ -397,7 +464,8 @@ def _blurred(tpl: _Template, length: float, direction: float) -> _Template:
 
 
 def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: bool = True,
-                scenery: np.ndarray | None = None, tilts=None, shutter: str | None = None) -> list:
+                scenery: np.ndarray | None = None, tilts=None, shutter: str | None = None,
+                impacts=()) -> list:
     """Candidate positions of one object in a frame for :func:`rough_pass`: (centre, RMS,
     template, cost, matched blurred) tuples. Searched within 4 px plus a frame's motion of the
     prediction (twice the object's size while its speed is not known yet); where the best is
@@ -408,9 +476,12 @@ def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: b
     :data:`BLUR_SPEED` px per frame whose look fits worse than it did (or, while ``shutter`` is
     None, at least :data:`PROBE_SPEED`) is also matched motion-blurred (:func:`_blurred`, over
     each of :data:`SHUTTERS` of a frame's motion): a sharp look matched to a long streak slides
-    along it. A candidate pays for its distance from the prediction: the recent RMS times
-    (distance / reach)^2, so a look-alike in the scenery does not win over the object where it
-    is expected. The template returned is the sharp one (the next frame blurs it anew)."""
+    along it. Touching another object, it is also searched where an impact may send it
+    (``impacts``: segments from :func:`_impacts`). A candidate pays for its distance from the
+    prediction (or the nearest impact segment): the recent RMS times (distance / reach)^2, so a
+    look-alike in the scenery does not win over the object where it is expected, plus the
+    recent RMS times :func:`_off_path` of its move. The template returned is the sharp one (the
+    next frame blurs it anew)."""
     speed = float(np.linalg.norm(vel))
     local = 4.0 + speed if len(recent) > 2 else 4.0 + max(speed, 2 * max(half))
     typical = float(np.median(recent)) if len(recent) > 2 else np.inf
@@ -446,22 +517,30 @@ def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: b
             out += matches(t, local, [t], at=np.asarray(pred, float) - vel + along)
     if best(out) > 1.5 * typical + 3.0:  # an impact that starts or stops it: further
         out += matches(tpl, 3 * local + max(half), [tpl] + (blurred_looks(tpl) if blur else []))
+    for ends in impacts:  # touching another object: anywhere an impact may send it
+        out += matches(tpl, 4.0 + 0.25 * speed + 0.5 * float(np.linalg.norm(ends[1] - ends[0])), [tpl],
+                       at=0.5 * (ends[0] + ends[1]))
+
+    prev = np.asarray(pred, float) - np.asarray(vel, float)
 
     def cost(c, r):
-        far = (float(np.linalg.norm(c - pred)) / local) ** 2
+        d = min([float(np.linalg.norm(c - pred))] + [_to_segment(c, ends) for ends in impacts])
+        far = (d / local) ** 2 + _off_path(c - prev, tilts)
         return r + (typical if np.isfinite(typical) else r) * far
 
     return sorted(((c, r, t, cost(c, r), b) for c, r, t, b in out), key=lambda o: o[3])[:8]
 
 
-def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) -> dict:
+def _choose(options: dict, fixed: dict, halves, previous: dict | None = None, miss: dict | None = None) -> dict:
     """One candidate per object (:func:`_candidates`) minimising the summed cost, with no two
     objects (also those ``fixed`` where they are) closer than 3/4 of the sum of their half
     lengths along the path (rigid bodies touch at most), and, where ``previous`` gives both
     objects' positions in the frame before, in the same order as there (the vector from one
     to the other does not turn by more than 90 degrees in a frame: two objects on one ramp
     cannot pass through each other; without this, look-alikes that collide may swap
-    identities). Objects without candidates are left out."""
+    identities). Objects without candidates are left out, and so is an object whose ``miss``
+    cost ({i: cost}, the cost above which a match is no match) is lower than any placement
+    its candidates allow."""
     ids = [i for i in options if options[i]]
     if not ids:
         return {}
@@ -474,14 +553,19 @@ def _choose(options: dict, fixed: dict, halves, previous: dict | None = None) ->
             return float(np.dot(c - d, previous[i] - previous[j])) > 0.0
         return True
 
+    miss = miss or {}
     best, best_cost = None, np.inf
-    for combo in itertools.product(*(range(len(options[i])) for i in ids)):
-        picks = {i: options[i][m] for i, m in zip(ids, combo)}
-        total = sum(p[3] for p in picks.values())
+    # an object may also be missed (index -1), at its cost in ``miss``: no candidate at all is
+    # better than one that costs more (a look matched far off its path to keep clear of another)
+    choices = [list(range(len(options[i]))) + ([-1] if i in miss else []) for i in ids]
+    for combo in itertools.product(*choices):
+        picks = {i: options[i][m] for i, m in zip(ids, combo) if m >= 0}
+        total = sum(p[3] for p in picks.values()) + sum(miss[i] for i, m in zip(ids, combo) if m < 0)
         if total >= best_cost:
             continue
-        ok = all(apart(i, picks[i][0], j, picks[j][0]) for a, i in enumerate(ids) for j in ids[a + 1:])
-        ok = ok and all(apart(i, picks[i][0], j, c) for i in ids for j, c in fixed.items())
+        placed = list(picks)
+        ok = all(apart(i, picks[i][0], j, picks[j][0]) for a, i in enumerate(placed) for j in placed[a + 1:])
+        ok = ok and all(apart(i, picks[i][0], j, c) for i in placed for j, c in fixed.items())
         if ok:
             best, best_cost = picks, total
     if best is None:  # nothing compatible: each its own best
