@@ -354,6 +354,14 @@ def test_a_short_excursion_of_a_track_is_dropped():
     moved = px.copy()
     moved[20:, 0] += [390.0, 20.0]  # a jump into a long run: a matter for the order and bridge rules
     assert _without_jumps(moved, valid, halves).all()
+    # a cube at rest struck at frame 30 slides off as fast as the striker came, seen for one frame
+    # before a collision hides it (fit benchmark plain_persp_7): its one step is no jump
+    pair = np.concatenate([px, np.full((N, 1, 2), 500.0)], axis=1)
+    pair[31:, 0, 0] = pair[30, 0, 0]
+    pair[31, 1, 0] += 29.0
+    both = np.ones((N, 2), bool)
+    both[32:, 1] = False
+    np.testing.assert_array_equal(_without_jumps(pair, both, halves * 2), both)
 
 
 def _pushed_pair(n_frames: int = 24):

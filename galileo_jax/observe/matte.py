@@ -473,18 +473,24 @@ def _not_isolated(valid: np.ndarray) -> np.ndarray:
 def _without_jumps(pixels: np.ndarray, valid: np.ndarray, halves, min_run: int = 5) -> np.ndarray:
     """(N, n) ``valid`` without the short runs of frames that the object's track jumps into and
     out of: split each object's valid frames (``pixels`` (N, n, 2)) where the centre moves
-    farther per frame than twice its 95th percentile speed plus its larger half size
-    (``halves``), and drop the pieces of fewer than ``min_run`` frames, unless that leaves
-    nothing. Such a piece is a measurement of something else (held-out world_107: after a
+    farther per frame than twice the 95th percentile speed of all objects' valid tracks plus its
+    larger half size (``halves``), and drop the pieces of fewer than ``min_run`` frames, unless
+    that leaves nothing. (All objects' speeds: a resting object struck by another moves as fast
+    as the striker, in the first frame of its slide.) Such a piece is a measurement of something else (held-out world_107: after a
     collision the tracker took the scenery 390 px away for object 1 in two frames); a fit
     given it would see a velocity of hundreds of px per frame."""
     out = valid.copy()
-    for i in range(valid.shape[1]):
-        ks = np.flatnonzero(valid[:, i])
+    steps = [np.flatnonzero(valid[:, i]) for i in range(valid.shape[1])]
+    speeds = [np.linalg.norm(np.diff(pixels[ks, i], axis=0), axis=-1) / np.diff(ks) for i, ks in enumerate(steps)
+              if len(ks) >= 2]
+    if not speeds:
+        return out
+    fast = float(np.percentile(np.concatenate(speeds), 95))
+    for i, ks in enumerate(steps):
         if len(ks) < 2:
             continue
         speed = np.linalg.norm(np.diff(pixels[ks, i], axis=0), axis=-1) / np.diff(ks)
-        jump = speed > 2.0 * float(np.percentile(speed, 95)) + max(halves[i])
+        jump = speed > 2.0 * fast + max(halves[i])
         pieces = np.split(ks, np.flatnonzero(jump) + 1)
         if len(pieces) < 2:
             continue
