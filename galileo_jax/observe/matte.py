@@ -476,26 +476,19 @@ def _without_jumps(pixels: np.ndarray, valid: np.ndarray, halves, min_run: int =
     farther per frame than twice the 95th percentile speed of all objects' valid tracks plus its
     larger half size (``halves``), and drop the pieces of fewer than ``min_run`` frames, unless
     that leaves nothing. (All objects' speeds: a resting object struck by another moves as fast
-    as the striker, in the first frame of its slide.) Such a piece is a measurement of something else (held-out world_107: after a
-    collision the tracker took the scenery 390 px away for object 1 in two frames); a fit
-    given it would see a velocity of hundreds of px per frame."""
+    as the striker, in the first frame of its slide.) Such a piece is a measurement of something
+    else (held-out world_107: after a collision the tracker took the scenery 390 px away for
+    object 1 in two frames); a fit given it would see a velocity of hundreds of px per frame."""
     out = valid.copy()
-    steps = [np.flatnonzero(valid[:, i]) for i in range(valid.shape[1])]
-    speeds = [np.linalg.norm(np.diff(pixels[ks, i], axis=0), axis=-1) / np.diff(ks) for i, ks in enumerate(steps)
-              if len(ks) >= 2]
-    if not speeds:
+    frames = [np.flatnonzero(valid[:, i]) for i in range(valid.shape[1])]
+    speeds = [np.linalg.norm(np.diff(pixels[ks, i], axis=0), axis=-1) / np.diff(ks) for i, ks in enumerate(frames)]
+    if not any(len(v) for v in speeds):
         return out
     fast = float(np.percentile(np.concatenate(speeds), 95))
-    for i, ks in enumerate(steps):
-        if len(ks) < 2:
-            continue
-        speed = np.linalg.norm(np.diff(pixels[ks, i], axis=0), axis=-1) / np.diff(ks)
-        jump = speed > 2.0 * fast + max(halves[i])
-        pieces = np.split(ks, np.flatnonzero(jump) + 1)
-        if len(pieces) < 2:
-            continue
+    for i, (ks, speed) in enumerate(zip(frames, speeds)):
+        pieces = np.split(ks, np.flatnonzero(speed > 2.0 * fast + max(halves[i])) + 1)
         short = [p for p in pieces if len(p) < min_run]
-        if len(short) < len(pieces):
+        if len(pieces) > 1 and len(short) < len(pieces):
             for p in short:
                 out[p, i] = False
     return out

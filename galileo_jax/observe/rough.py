@@ -322,9 +322,9 @@ def rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_fr
                                      blurred=not near, scenery=scenery, tilts=tilts, shutter=shutter,
                                      impacts=_impacts(i, px[prev], vel, halves) if near else ())
         # 2. the best positions together: two objects do not overlap by much (look-alikes touching)
+        miss = {i: MISS_COST * _no_match(recent_rms[i][-10:]) for i in options if len(recent_rms[i][-10:]) > 2}
         chosen = _choose(options, {i: px[k, i] for i in range(n) if i not in options and np.all(np.isfinite(px[k, i]))},
-                         halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))},
-                         {i: MISS_COST * _no_match(recent_rms[i][-10:]) for i in options if len(recent_rms[i][-10:]) > 2})
+                         halves, {i: px[prev, i] for i in range(n) if np.all(np.isfinite(px[prev, i]))}, miss)
         # 3. update (a match far worse than the recent ones is no match: the object is hidden)
         for i, opts in options.items():
             recent = recent_rms[i][-10:]
