@@ -30,8 +30,11 @@ def machine_line() -> str:
                    if ln.startswith("model name")) + ", "
     except (OSError, StopIteration):
         pass
+    backend = jax.default_backend()
+    if backend != "cpu":
+        backend += ": " + jax.devices()[0].device_kind
     return (f"{platform.machine()}, {cpu}{os.cpu_count()} CPU cores, Python {platform.python_version()}, "
-            f"JAX {jax.__version__} ({jax.default_backend()}), MuJoCo {mujoco.__version__}")
+            f"JAX {jax.__version__} ({backend}), MuJoCo {mujoco.__version__}")
 
 
 def code_version(*paths: str) -> str:

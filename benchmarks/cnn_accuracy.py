@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import functools
 import itertools
+import json
 import os
 import sys
 import time
@@ -121,10 +122,13 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
     return out
 
 
-def write_tables(results: list[dict], n_tests: int) -> None:
+def write_tables(results: list[dict], n_tests: int, machine: str | None = None) -> None:
+    """``cnn_accuracy.{json,md}`` (``machine``: the line of the machine that measured ``results``,
+    default this one); the markdown also shows the training throughput tables of
+    ``benchmarks/cnn_throughput.py`` (``cnn_throughput*.json``), CPU and GPU."""
     from galileo_jax.report.results import write_json
 
-    machine = machine_line()
+    machine = machine or machine_line()
     write_json(RESULTS / "cnn_accuracy.json", {"machine": machine, "tests": n_tests, "seed_table": SEED_TABLE,
                                                "models": results})
     names = ("k1", "k2", "phi", "dt_release")
@@ -158,6 +162,11 @@ def write_tables(results: list[dict], n_tests: int) -> None:
         lines.append(f"| {r['model']} | {r['n_weights']} | {r['trained_steps']} | {r['examples_seen']} "
                      f"({r['rollouts_simulated']}) | {r['train_examples_per_s'] or float('nan'):.0f} | "
                      f"{r['train_s'] or float('nan'):.0f} | {r['forward_ms']:.2f} |")
+    from cnn_throughput import table
+
+    for path in sorted(RESULTS.glob("cnn_throughput*.json")):
+        lines += ["", "## Training throughput (" + ("GPU" if "gpu" in path.stem else "CPU") + ")", ""]
+        lines += table(json.loads(path.read_text()))
     from galileo_jax.report.results import atomic_path
 
     with atomic_path(RESULTS / "cnn_accuracy.md") as tmp:

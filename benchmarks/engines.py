@@ -76,7 +76,7 @@ def compile_time(seconds: float, batch: int) -> dict:
     return {"build_s": build, "first_call_s": first, "run_s": run, "compile_s": first - run}
 
 
-def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
+def measure(batches: list[int], seconds: float, repeats: int, chunk: int) -> list[dict]:
     import jax
     import numpy as np
 
@@ -87,19 +87,21 @@ def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
     sim, n = _setup(seconds)
     # One vmap of 4096 MJX rollouts deadlocks on this CPU (jaxlib 0.10.2: every thread idle, as
     # 64 vmapped LM starts did), and so did chunks of 1024; above MJX_CHUNK the batch runs as
-    # lax.map over vmapped chunks, through the project's own map_batch.
-    mjx_fn = jax.jit(lambda m, k: map_batch(lambda a: rollout(sim, PhysParams(*a), n).pose, (m, k), MJX_CHUNK))
+    # lax.map over vmapped chunks, through the project's own map_batch. On a GPU ``chunk`` is the
+    # largest batch: one vmap.
+    mjx_fn = jax.jit(lambda m, k: map_batch(lambda a: rollout(sim, PhysParams(*a), n).pose, (m, k), chunk))
+    on_cpu = jax.default_backend() == "cpu"
     cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, n)))
     rows = []
     for b in batches:
         mass, friction = _params(b)
-        row = {"batch": b, "n_steps": n, "mjx_chunk": min(b, MJX_CHUNK)}
+        row = {"batch": b, "n_steps": n, "mjx_chunk": min(b, chunk)}
         for name, fn in (("mjx", lambda: mjx_fn(mass, friction).block_until_ready()),
                          ("mujoco", lambda: rollout_poses_host(sim, mass, friction, n)),
                          ("mujoco_jit", lambda: cb_fn(mass, friction).block_until_ready())):
             fn()  # compile / warm
             best = np.inf
-            reps = repeats if b < 1024 or name != "mjx" else 1
+            reps = repeats if b < 1024 or name != "mjx" or not on_cpu else 1
             for _ in range(reps):
                 t = time.perf_counter()
                 out = fn()
@@ -119,21 +121,37 @@ def measure(batches: list[int], seconds: float, repeats: int) -> list[dict]:
     return rows
 
 
-def write_tables(result: dict) -> None:
+def write_tables(result: dict, name: str = "engines") -> None:
+    """``<name>.json`` and ``<name>.md``; ``engines.md`` also gets the GPU run's table
+    (``engines_gpu.json``, ``--out engines_gpu``) when there is one."""
     from galileo_jax.report.results import atomic_path, write_json
 
-    write_json(RESULTS / "engines.json", result)
+    write_json(RESULTS / f"{name}.json", result)
+    lines = _table(result, "# Engines: MJX jit(vmap(scan)) vs C MuJoCo mujoco.rollout (ramp_20 scene)")
+    gpu = RESULTS / "engines_gpu.json"
+    if name == "engines" and gpu.exists():
+        lines += [""] + _table(json.loads(gpu.read_text()), "## On a GPU (MJX's design target)")
+    with atomic_path(RESULTS / f"{name}.md") as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    if name != "engines" and (RESULTS / "engines.json").exists():
+        write_tables(json.loads((RESULTS / "engines.json").read_text()))
+
+
+def _table(result: dict, title: str) -> list[str]:
     c = result["compile"]
-    lines = ["# Engines: MJX jit(vmap(scan)) vs C MuJoCo mujoco.rollout (ramp_20 scene)", "",
+    lines = [title, "",
              f"machine: {result['machine']}", "",
              f"Command: `{result['command']}`. {result['seconds']} s of simulated time per rollout "
              f"({result['rows'][0]['n_steps']} steps at dt = 1/240 s), float64. Rollouts per second, best of "
-             f"{result['repeats']} (1 for MJX at B >= 1024); C MuJoCo timings include the per-rollout model copies "
+             f"{result['repeats']}" + (" (1 for MJX at B >= 1024)" if result.get("backend", "cpu") == "cpu" else "")
+             + "; C MuJoCo timings include the per-rollout model copies "
              "and mj_setConst. 'in jit': the C engine through jax.pure_callback inside jit(vmap), as the samplers "
              "call it. Position diff: largest |x, z| difference of the two engines' trajectories (same parameters)."
              + "".join(f" MJX at batch {r['batch']}: lax.map over vmapped chunks of {r['mjx_chunk']} (one vmap of "
                        "4096, and chunks of 1024, deadlocked: jaxlib 0.10.2 on this CPU, every thread idle)."
-                       for r in result["rows"] if r.get("mjx_chunk", r["batch"]) < r["batch"]),
+                       for r in result["rows"] if r.get("mjx_chunk", r["batch"]) < r["batch"])
+             + ("" if any(r.get("mjx_chunk", r["batch"]) < r["batch"] for r in result["rows"])
+                else " MJX runs every batch as one vmap."),
              "", "| batch | MJX (rollouts/s) | C MuJoCo | C MuJoCo in jit | C / MJX | max position diff (m) | "
                  "median of per-rollout max (m) |",
              "|---|---|---|---|---|---|---|"]
@@ -145,8 +163,7 @@ def write_tables(result: dict) -> None:
                   f"{c['cold']['compile_s']:.1f} s, with the persistent cache {c['warm']['compile_s']:.1f} s "
                   f"(scene build {c['cold']['build_s']:.1f} / {c['warm']['build_s']:.1f} s). "
                   "The C engine compiles nothing."]
-    with atomic_path(RESULTS / "engines.md") as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
+    return lines
 
 
 def main(argv=None) -> int:
@@ -155,6 +172,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per rollout")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--compile-batch", type=int, default=16)
+    ap.add_argument("--chunk", type=int, help=f"largest single MJX vmap (default {MJX_CHUNK} on a CPU, "
+                    "the largest batch on a GPU)")
+    ap.add_argument("--out", default="engines", help="table name in benchmarks/results (default engines; "
+                    "engines_gpu for a GPU run, which engines.md then shows too)")
     ap.add_argument("--compile-only", action="store_true", help=argparse.SUPPRESS)  # the subprocess' mode
     ap.add_argument("--merge", action="store_true",
                     help="keep the committed table's other batch sizes and compile times; measure only --batches")
@@ -163,7 +184,7 @@ def main(argv=None) -> int:
     if args.compile_only:
         print(json.dumps(compile_time(args.seconds, args.compile_batch)))
         return 0
-    old = json.loads((RESULTS / "engines.json").read_text()) if args.merge else None
+    old = json.loads((RESULTS / f"{args.out}.json").read_text()) if args.merge else None
     comp = old["compile"] if old else {"batch": args.compile_batch}
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, GALILEO_JAX_CACHE=cache)
@@ -176,19 +197,26 @@ def main(argv=None) -> int:
     from galileo_jax.jaxcache import enable_compilation_cache
 
     enable_compilation_cache()
-    rows = measure([int(b) for b in args.batches.split(",")], args.seconds, args.repeats)
-    if old:  # rows measured now replace the committed ones of the same batch size
-        new = {r["batch"] for r in rows}
-        rows = sorted([r for r in old["rows"] if r["batch"] not in new] + rows, key=lambda r: r["batch"])
-    machine = machine_line()
     import jax
+
+    batches = [int(b) for b in args.batches.split(",")]
+    chunk = args.chunk or (MJX_CHUNK if jax.default_backend() == "cpu" else max(batches))
+    machine = machine_line()
     import mujoco
 
-    write_tables({"machine": machine, "jax": jax.__version__, "mujoco": mujoco.__version__,
-                  "command": (old["command"] + "`, then `" if old else "") + "python benchmarks/engines.py "
-                  + " ".join(argv if argv is not None else sys.argv[1:]),
-                  "seconds": args.seconds, "repeats": old["repeats"] if old else args.repeats, "compile": comp,
-                  "rows": rows})
+    done = []
+    for b in batches:  # the tables are written after each batch size (a run stopped early keeps its rows)
+        done += measure([b], args.seconds, args.repeats, chunk)
+        new = {r["batch"] for r in done}
+        # rows measured now replace the committed ones of the same batch size
+        rows = sorted([r for r in (old["rows"] if old else []) if r["batch"] not in new] + done,
+                      key=lambda r: r["batch"])
+        write_tables({"machine": machine, "backend": jax.default_backend(), "jax": jax.__version__,
+                      "mujoco": mujoco.__version__,
+                      "command": (old["command"] + "`, then `" if old else "") + "python benchmarks/engines.py "
+                      + " ".join(argv if argv is not None else sys.argv[1:]),
+                      "seconds": args.seconds, "repeats": old["repeats"] if old else args.repeats, "compile": comp,
+                      "rows": rows}, args.out)
     return 0
 
 

@@ -52,8 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-effects", type=int, default=1, help="effects added one after another at most (default 1)")
     p.add_argument("--alpha", type=float, default=0.05, help="false-alarm rate of 'an effect is missing' (default 0.05)")
     p.add_argument("--engine", choices=("auto", "mjx", "mujoco"), default="auto",
-                   help="simulation engine: auto (default: C MuJoCo on a CPU except for effects that act every "
-                        "physics step, which run on MJX; MJX on a GPU), mjx, or mujoco (no per-step effects)")
+                   help="simulation engine: auto (default: C MuJoCo except for effects that act every "
+                        "physics step, which run on MJX), mjx, or mujoco (no per-step effects)")
     p.add_argument("--out", help="output folder (default: <first video>_diagnose next to it)")
     p.add_argument("--fps", type=float, help="frame rate override (frames per second)")
     p.add_argument("--seed", type=int, default=0, help="random seed")

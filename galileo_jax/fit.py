@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "(e.g. quadratic_drag,restitution; see python -m galileo_jax.diagnose --list)")
     p.add_argument("--engine", choices=("auto", "mjx", "mujoco"),
                    help="simulator of the rollouts: mjx (JAX, differentiable), mujoco (C MuJoCo's batched rollouts) "
-                        "or auto (default: mujoco on CPU unless the fit needs MJX, mjx on GPU)")
+                        "or auto (default: mujoco unless the fit needs MJX, on a GPU too)")
     p.add_argument("--likelihood", help="likelihood kind: gaussian_iid (default), gaussian_ma1, seed_gaussian, emd, rms")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")

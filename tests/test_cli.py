@@ -95,7 +95,7 @@ def test_seed_method_on_the_example(tmp_path):
     assert abs(result["parameters"]["k1"]["estimate"] - truth["k1"]) < 0.02
     from galileo_jax.config import pick_engine
 
-    assert result["diagnostics"]["engine"] == pick_engine("auto")  # C MuJoCo on a CPU, MJX on a GPU
+    assert result["diagnostics"]["engine"] == pick_engine("auto")  # C MuJoCo (on a GPU too)
     # every report carries a fit-adequacy verdict, in result.json and in the printed summary
     adequacy = result["adequacy"]
     assert isinstance(adequacy["adequate"], bool) and adequacy["noise_floor_m_per_s"] > 0

@@ -258,19 +258,19 @@ def test_user_defined_effect_is_simulated_and_found_by_diagnose(tmp_path):
     diag = diagnose(scene, obs, settings)
     d = diag.decision
     assert d["missing_effects"] == ["test_cubic_drag"], d["message"]
-    if jax.default_backend() == "cpu":  # each model on fit's engine; the base refitted on MJX for the force law
-        rnd = diag.rounds[0]
-        assert diag.fits[0].union.engine == "mujoco" and diag.final.union.engine == "mjx"
-        assert rnd.engines == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
-        assert [t["engine"] for t in rnd.transfers] == ["mjx"]
-        assert {x.effect: x.engine for x in rnd.refits} == rnd.engines
-        # each model's log-likelihood gain is read against the base model on its own engine
-        ref = base_loglik_by_engine(diag)
-        assert set(ref) == {"mujoco", "mjx"}
-        for x in rnd.refits:  # the named model's test was before its polish (a second search)
-            fit = diag.fits[x.fit_index]
-            tested = fit.polish["loglik_lm"] if getattr(fit, "polish", None) else fit.loglik
-            assert tested - ref[x.engine] == pytest.approx(x.delta_loglik)
+    # each model on fit's engine (on a GPU too); the base refitted on MJX for the force law
+    rnd = diag.rounds[0]
+    assert diag.fits[0].union.engine == "mujoco" and diag.final.union.engine == "mjx"
+    assert rnd.engines == {"test_cubic_drag": "mjx", "linear_drag": "mujoco"}
+    assert [t["engine"] for t in rnd.transfers] == ["mjx"]
+    assert {x.effect: x.engine for x in rnd.refits} == rnd.engines
+    # each model's log-likelihood gain is read against the base model on its own engine
+    ref = base_loglik_by_engine(diag)
+    assert set(ref) == {"mujoco", "mjx"}
+    for x in rnd.refits:  # the named model's test was before its polish (a second search)
+        fit = diag.fits[x.fit_index]
+        tested = fit.polish["loglik_lm"] if getattr(fit, "polish", None) else fit.loglik
+        assert tested - ref[x.engine] == pytest.approx(x.delta_loglik)
     fitted = diag.final.summary["parameters"]["drag_cubic"]
     assert fitted["interval90"][0] - 0.3 < 3.0 < fitted["interval90"][1] + 0.3
     assert d["rmse_final"] < 0.5 * d["rmse_base"]

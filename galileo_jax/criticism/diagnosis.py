@@ -78,11 +78,11 @@ Structural effects (no parameter, e.g. ``rolling``) change the model's structure
 union of their own.
 
 Engines. Every model runs on the engine ``fit`` would use for it (``settings.engine``, default
-"auto": :func:`~galileo_jax.criticism.models.model_engine`): on a CPU the base model, and the effects that act only through
+"auto": :func:`~galileo_jax.criticism.models.model_engine`): the base model, and the effects that act only through
 model fields, the release velocity or the model's structure (restitution, initial push,
 rolling), run on C MuJoCo; the effects that act every physics step (drags, velocity-dependent
-friction, a user's force law) on MJX, which the open-loop C rollout cannot do; on a GPU all on
-MJX. So the diagnosis's base model is the one ``fit`` reports, and models are only ever
+friction, a user's force law) on MJX, which the open-loop C rollout cannot do (on a GPU too).
+So the diagnosis's base model is the one ``fit`` reports, and models are only ever
 compared within one engine where the comparison is nested: the base fit (C) is refitted on MJX
 once, by LM from its estimate, before the MJX effects are screened and refitted against it, and
 the null refit of step 5 is done per union. (The two engines agree to 1e-5 m/s while objects

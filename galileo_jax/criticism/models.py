@@ -332,7 +332,7 @@ class Union:
 def model_engine(scenes, effects, settings: DiagnoseSettings) -> str:
     """The engine of a model with the scenes' own effects plus ``effects``: ``fit``'s rule
     (:func:`~galileo_jax.config.pick_engine`): MJX if any of them acts every physics step
-    (the C engine's open-loop ``mujoco.rollout`` cannot), else C MuJoCo on a CPU."""
+    (the C engine's open-loop ``mujoco.rollout`` cannot), else C MuJoCo."""
     from galileo_jax.config import pick_engine
     from galileo_jax.effects.runtime import has_step_hooks
 

@@ -76,11 +76,11 @@ class DiagnoseSettings:
         per_video: with several videos, parameter names fitted per video (besides ``v0``).
         engine: simulation engine of the models, "auto" (default), "mjx" or "mujoco". "auto"
             runs every model on the engine ``fit`` would pick for it
-            (:func:`~galileo_jax.config.pick_engine`): on a CPU, C MuJoCo for the base model and
+            (:func:`~galileo_jax.config.pick_engine`): C MuJoCo for the base model and
             for effects that act only through model fields, the release velocity or the
             model's structure (restitution, initial push, rolling), MJX for effects that act
-            every physics step (drags, velocity-dependent friction, a user's force law); on a
-            GPU, MJX for all. Each effect is tested against the current model refitted on its
+            every physics step (drags, velocity-dependent friction, a user's force law); the
+            same on a GPU. Each effect is tested against the current model refitted on its
             own engine (:mod:`galileo_jax.criticism.diagnosis`, "Engines").
         search_popsize_c, search_generations_c: CMA-ES points per generation and generations of
             every search (refit and second search) on the C engine, where a rollout costs about

@@ -71,6 +71,16 @@ DEFAULT_FD_STEP = 0.05
 #: Measured on 2 CPU cores (two-box scene, 1.6 s at 240 Hz, float64): 30 rollouts/s at
 #: batch 1, 155/s at 16, 115/s at 64, 127/s at 256.
 DEFAULT_MAX_BATCH = 16
+#: The same on a GPU. Measured on an H100 (``benchmarks/results/engines_gpu.md``): one vmap of 4096
+#: rollouts ran 8x the rollouts/s of one of 256; a CNN training step of 1,024 rollouts in one vmap
+#: took 65 GB of the card's 80 (``cnn_throughput_gpu.md``), hence 1,024.
+GPU_MAX_BATCH = 1024
+
+
+def default_max_batch() -> int:
+    """Largest vmapped batch of rollouts for JAX's default backend: :data:`DEFAULT_MAX_BATCH` on a CPU,
+    :data:`GPU_MAX_BATCH` on an accelerator."""
+    return DEFAULT_MAX_BATCH if jax.default_backend() == "cpu" else GPU_MAX_BATCH
 #: Profiles are padded to a multiple of this many samples, and rollouts to whole blocks of
 #: this many frames, so that videos of similar length share compiled programs.
 PAD_SAMPLES = 8
@@ -352,7 +362,8 @@ class Problem(BatchedAPI):
         observation: the observed profile (frame rate, mask, noise SDs).
         likelihood: a likelihood kind (``galileo_jax.likelihood.KINDS``), default "gaussian_iid".
         sd_model: model-error floor in m/s for the Gaussian kinds.
-        max_batch: largest vmapped batch of rollouts; larger batches are chunked.
+        max_batch: largest vmapped batch of rollouts; larger batches are chunked (default
+            :func:`default_max_batch`: 16 on a CPU, 1024 on a GPU).
         effects: extra physical effects (names or :class:`~galileo_jax.effects.Effect`), added
             to the scene's own ``effects``; their parameters follow the base ones in theta.
         engine: simulation engine, "mjx" (default; differentiable) or "mujoco" (C MuJoCo's
@@ -374,12 +385,13 @@ class Problem(BatchedAPI):
     """
 
     def __init__(self, scene: Scene, observation: Observation, likelihood: str = DEFAULT_KIND,
-                 sd_model: float = DEFAULT_SD_MODEL, max_batch: int = DEFAULT_MAX_BATCH, effects=(),
+                 sd_model: float = DEFAULT_SD_MODEL, max_batch: int | None = None, effects=(),
                  engine: str = "mjx", pad_to: int | None = None):
         n_traces = 2 * scene.n_objects
         if np.shape(observation.profile)[0] != n_traces:
             raise ValueError(f"observation has {np.shape(observation.profile)[0]} velocity traces, "
                              f"the scene's {scene.n_objects} object(s) need {n_traces}")
+        max_batch = default_max_batch() if max_batch is None else max_batch
         if max_batch < 1:
             raise ValueError(f"max_batch must be >= 1, got {max_batch}")
         self.scene = scene
