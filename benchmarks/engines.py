@@ -82,8 +82,10 @@ def measure(batches: list[int], seconds: float, repeats: int, chunk: int) -> lis
 
     from galileo_jax.inference.problem import map_batch
     from galileo_jax.physics.simulate import PhysParams, rollout
+    from galileo_jax.physics import simulate_c
     from galileo_jax.physics.simulate_c import rollout_poses, rollout_poses_host
 
+    simulate_c.CACHE_ROLLOUTS = 0  # every repeat simulates (the callback would remember the inputs)
     sim, n = _setup(seconds)
     # One vmap of 4096 MJX rollouts deadlocks on this CPU (jaxlib 0.10.2: every thread idle, as
     # 64 vmapped LM starts did), and so did chunks of 1024; above MJX_CHUNK the batch runs as

@@ -64,6 +64,38 @@ def test_c_engine_inside_jit_and_vmap_matches_host_batches():
         fit_grad(c, jax.random.PRNGKey(1), n_starts=1, n_screen=4, max_steps=2, jacobian="ad")
 
 
+def test_c_engine_simulates_a_repeated_rollout_once(monkeypatch):
+    """The callback's cache returns exactly the poses of a fresh simulation, simulates each distinct
+    rollout of a batch once, and a rollout asked for again not at all (what a finished start of a
+    vmapped LM asks for at every later step)."""
+    from galileo_jax.physics import simulate_c
+
+    sim = make_simulator(SCENE, 30.0, (), "mujoco")
+    n = steps_needed(sim, 1.0)
+    rng = np.random.default_rng(5)
+    mass, friction = rng.uniform(0.1, 1.0, (3, 2)), np.c_[rng.uniform(0.05, 0.3, 3), rng.uniform(0.05, 0.6, 3)]
+    ran = []
+    real = simulate_c.rollout_poses_host
+
+    def counting(sim_, m, *args):
+        ran.append(len(m))
+        return real(sim_, m, *args)
+
+    monkeypatch.setattr(simulate_c, "rollout_poses_host", counting)
+    simulate_c.clear_rollout_cache()
+    fresh = real(sim, mass, friction, n)
+    rows = [0, 1, 0, 2, 1]  # a batch with repeats
+    first = simulate_c.cached_rollout_poses(sim, mass[rows], friction[rows], n)
+    assert ran == [3] and np.array_equal(first, fresh[rows])
+    again = simulate_c.cached_rollout_poses(sim, mass[[2, 0]], friction[[2, 0]], n)
+    assert ran == [3] and np.array_equal(again, fresh[[2, 0]])
+    other = simulate_c.cached_rollout_poses(sim, mass[:1], friction[:1] + 0.01, n)  # new inputs: simulated
+    assert ran == [3, 1] and not np.array_equal(other[0], fresh[0])
+    monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)  # off: every row simulated
+    simulate_c.cached_rollout_poses(sim, mass[rows], friction[rows], n)
+    assert ran == [3, 1, 5]
+
+
 def test_engine_choice():
     assert resolve_engine(FitConfig()) == "mujoco"  # on a GPU too (engines.md: faster at a fit's batches)
     assert resolve_engine(FitConfig(engine="mjx")) == "mjx"

@@ -92,9 +92,10 @@ def test_grad_recovers_truth(problem_c):
 
 def test_rollout_counter_counts_what_the_engine_ran(problem_c, monkeypatch):
     """``count_rollouts`` (the benchmarks' one counter) equals the rollouts the C engine's host
-    callback actually ran during ``fit_grad``, polish included."""
+    callback was asked for during ``fit_grad`` (its cache of recent rollouts off), polish included."""
     from galileo_jax.physics import simulate_c
 
+    monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)
     ran = []
     real = simulate_c.rollout_poses_host
 

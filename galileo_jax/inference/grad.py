@@ -460,15 +460,17 @@ def grad_result(space, log_norm, z_hat, cov_z: np.ndarray, best_cost: float, the
 
 
 def count_rollouts(res: GradResult, *, n_screen: int, polish_rounds: int = 3, polish_points: int = 64) -> int:
-    """Rollouts the batched programs of one :func:`fit_grad` call executed (the project's one
-    rollout counter: benchmarks compare methods and tools by it).
+    """Rollouts the batched programs of one :func:`fit_grad` call asked for (the project's one
+    rollout counter: benchmarks compare methods and tools by it). The C engine simulates fewer:
+    it remembers recent rollouts (:func:`~galileo_jax.physics.simulate_c.cached_rollout_poses`), and
+    a finished start asks for the same ones at every later step.
 
     The S starts run as one vmapped optimistix while-loop, so every start computes until the
     last one stops: S x max(steps) LM steps, each one central-difference residual Jacobian
     (2d + 1 rollouts, the centre giving the residual), plus the start's and the end point's
     residuals (2 per start); then the screen, the final FD Jacobian (2d + 1) and the polish
     (rounds x points, and the Jacobian again if the polish moved the point). Checked against a
-    callback that counts the rollouts the compiled programs run, to the rollout
+    callback that counts the rollouts the compiled programs ask for, to the rollout
     (``benchmarks/sysid.py``). The profile-likelihood check (``profile=True``) is not counted.
 
     Args:
