@@ -61,8 +61,9 @@ wall time (ours: compilation excluded, every configuration runs once on a warm-u
 the warm-up times are reported as "first call", measured without JAX's persistent
 compilation cache unless ``--cache``; sysid's rollouts run on ``os.cpu_count()`` C threads
 through ``mujoco.rollout``, ours on XLA's CPU threads); simulations (sysid: rollouts counted
-in the residual callback; ours: rollouts executed by the batched programs, counted from the
-iteration counts, :func:`galileo_jax.inference.grad.count_rollouts`); iterations. Writes
+in the residual callback; ours: rollouts the batched programs ask for, counted from the
+iteration counts, :func:`galileo_jax.inference.grad.count_rollouts`: on the C engine fewer are
+simulated, as its callback remembers recent rollouts); iterations. Writes
 ``benchmarks/results/sysid.{md,json}`` atomically after each set; rerunning with the same
 settings resumes from the JSON (``--fresh``: start again).
 
@@ -463,7 +464,8 @@ def write_tables(path: Path, doc: dict) -> None:
              "MJX (median: MJX blows up at some estimates C MuJoCo simulates fine, such as k2 = 0 on its bound; "
              "'MJX blown up' counts them: rollout not finite or RMSE > 1 m/s); "
              "time: wall time per fit, mean (median), compilation excluded for grad; simulations: rollouts "
-             "(grad: executed by its batched programs; sysid: counted in its residual callback); iterations: "
+             "(grad: asked for by its batched programs, fewer simulated on C MuJoCo, whose callback remembers recent "
+             "rollouts; sysid: counted in its residual callback); iterations: "
              "grad LM steps of all starts; sysid mujoco backend iterations, scipy backend function evaluations.", ""]
     runs_of = doc.get("engine_runs", {})
     if runs_of:
