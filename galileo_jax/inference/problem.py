@@ -81,6 +81,8 @@ def default_max_batch() -> int:
     """Largest vmapped batch of rollouts for JAX's default backend: :data:`DEFAULT_MAX_BATCH` on a CPU,
     :data:`GPU_MAX_BATCH` on an accelerator."""
     return DEFAULT_MAX_BATCH if jax.default_backend() == "cpu" else GPU_MAX_BATCH
+
+
 #: Profiles are padded to a multiple of this many samples, and rollouts to whole blocks of
 #: this many frames, so that videos of similar length share compiled programs.
 PAD_SAMPLES = 8
