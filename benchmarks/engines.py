@@ -76,7 +76,8 @@ def compile_time(seconds: float, batch: int) -> dict:
     return {"build_s": build, "first_call_s": first, "run_s": run, "compile_s": first - run}
 
 
-def measure(batches: list[int], seconds: float, repeats: int, chunk: int) -> list[dict]:
+def measure(batches: list[int], seconds: float, repeats: int, chunk: int):
+    """Yield one row per batch size (rollouts per second of each engine, their position difference)."""
     import jax
     import numpy as np
 
@@ -94,7 +95,6 @@ def measure(batches: list[int], seconds: float, repeats: int, chunk: int) -> lis
     mjx_fn = jax.jit(lambda m, k: map_batch(lambda a: rollout(sim, PhysParams(*a), n).pose, (m, k), chunk))
     on_cpu = jax.default_backend() == "cpu"
     cb_fn = jax.jit(jax.vmap(lambda m, k: rollout_poses(sim, m, k, n)))
-    rows = []
     for b in batches:
         mass, friction = _params(b)
         row = {"batch": b, "n_steps": n, "mjx_chunk": min(b, chunk)}
@@ -116,11 +116,10 @@ def measure(batches: list[int], seconds: float, repeats: int, chunk: int) -> lis
                 row["max_position_diff_m"] = float(np.max(diff))
                 row["median_position_diff_m"] = float(np.median(np.max(diff, axis=(1, 2, 3))))
         row["ratio_mujoco_over_mjx"] = row["mujoco_rollouts_per_s"] / row["mjx_rollouts_per_s"]
-        rows.append(row)
         print(f"B={b:5d}: mjx {row['mjx_rollouts_per_s']:9.1f}/s, mujoco {row['mujoco_rollouts_per_s']:9.1f}/s "
               f"(in jit {row['mujoco_jit_rollouts_per_s']:9.1f}/s), ratio {row['ratio_mujoco_over_mjx']:.1f}x, "
               f"max |dx| {row['max_position_diff_m']:.2e} m", flush=True)
-    return rows
+        yield row
 
 
 def write_tables(result: dict, name: str = "engines") -> None:
@@ -207,8 +206,8 @@ def main(argv=None) -> int:
     import mujoco
 
     done = []
-    for b in batches:  # the tables are written after each batch size (a run stopped early keeps its rows)
-        done += measure([b], args.seconds, args.repeats, chunk)
+    for row in measure(batches, args.seconds, args.repeats, chunk):  # tables written after each batch size
+        done.append(row)  # (a run stopped early keeps its rows)
         new = {r["batch"] for r in done}
         # rows measured now replace the committed ones of the same batch size
         rows = sorted([r for r in (old["rows"] if old else []) if r["batch"] not in new] + done,
