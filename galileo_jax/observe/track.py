@@ -55,6 +55,14 @@ CROSS_CHECK_AGREE_PX = 1.0
 CAUGHT_FRAMES = 3
 #: A colour track whose noise SD is under this fraction of the KLT track's replaces it.
 STEADIER = 0.8
+#: A KLT track whose offset from the colour track (where that one measured at least
+#: :data:`STEP_QUALITY`) shifts by more than this (px, median of :data:`CAUGHT_FRAMES` compared
+#: frames before against after) has jumped: its features were lost at a turn or an impact
+#: and the centre was carried over wrongly, or it stuck to the scenery. The offset between the
+#: two trackers' points drifts by at most 1-2 px across a wide perspective view (measured on
+#: the tracking benchmark), a jump was 10-200 px.
+STEP_PX = 4.0
+STEP_QUALITY = 0.8
 #: Smallest eigenvalue of the structure tensor (``cv2.cornerMinEigenVal``, block 5, on 8-bit
 #: grey) that counts as texture: a plain patch with pixel noise of SD 6 grey levels stays
 #: below 0.0006, a 10 px checker of contrast 70 reaches 0.02 (measured).
@@ -396,6 +404,27 @@ def _offset_residuals(px_a: np.ndarray, px_b: np.ndarray, both: np.ndarray) -> n
     return np.where(np.isfinite(resid), resid, np.inf)
 
 
+def _klt_stepped(px_k: np.ndarray, valid_k: np.ndarray, px_c: np.ndarray, good_c: np.ndarray,
+                 run: int = CAUGHT_FRAMES) -> bool:
+    """Whether a KLT track's offset from the colour track of the same object shifts by more
+    than :data:`STEP_PX` somewhere: the median offset over ``run`` compared frames (KLT
+    ``valid_k``, colour ``good_c``, both (N,) bool; pixels (N, 2)) before a frame against the
+    median over ``run`` from it. Two trackers on one object measure two of its points, whose
+    offset drifts slowly with the position; a shift that persists for ``run`` frames is one of
+    them leaving the object, and a colour track measured well there (its matte has the
+    object's colours and shape) is not the one that left."""
+    both = valid_k & good_c & np.all(np.isfinite(px_k), axis=-1) & np.all(np.isfinite(px_c), axis=-1)
+    ks = np.flatnonzero(both)
+    if len(ks) < 2 * run:
+        return False
+    off = px_k[ks] - px_c[ks]
+    for j in range(run, len(ks) - run + 1):
+        shift = np.median(off[j: j + run], axis=0) - np.median(off[j - run: j], axis=0)
+        if float(np.hypot(*shift)) > STEP_PX:
+            return True
+    return False
+
+
 def _on_scenery(frames: np.ndarray, background: np.ndarray, tracks: list, frames_asked: np.ndarray,
                 win: Window) -> np.ndarray:
     """(m, N) bool: per track of ``tracks`` (m tracks' pixels (N, 2)) the frames among
@@ -427,6 +456,10 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
     object (:func:`_overlaps`; its features moved onto the other object at a collision) is
     replaced by the colour track if that one never does and the KLT track does in at least
     :data:`CAUGHT_FRAMES` frames; else those frames are dropped.
+
+    A KLT track whose offset from a well-measured colour track shifts by more than
+    :data:`STEP_PX` (:func:`_klt_stepped`: it jumped at a turn or an impact, or stuck to the
+    scenery) is replaced by the colour track.
 
     Where they disagree in general (median distance over :data:`CROSS_CHECK_AGREE_PX`), KLT is
     kept, unless (with ``scenery`` = (frames (N, H, W, 3), grey background or None, (n,)
@@ -481,6 +514,9 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
                     continue
                 dropped[i] += int(inside.sum())
                 valid[inside, i], quality[inside, i] = False, 0.0
+        if _klt_stepped(px[:, i], valid[:, i], px_c, valid_c & (q_c >= STEP_QUALITY)):
+            take_colour(i, px_c, valid_c, q_c)
+            continue
         both = valid[:, i] & (q_c >= 0.9)
         if both.sum() < 8:
             continue
