@@ -13,8 +13,10 @@ Errors are reported after fitting, per object, a scale about the image centre an
 of the objects' centres where the scene's scale is measured, so any tracker's positions are
 that face's, magnified by D / (D - depth) about the optical axis (1-2% here); that is a
 calibration matter (the fit's ``scale_tolerance``), not a tracking error, and an offset does
-not change velocities. The fitted scale is reported (its deviation from 1, in %), and so is
-the raw error.
+not change velocities. An object that moves less than ``MIN_TRAVEL`` px (a struck cube that
+hardly moves) cannot fix its own scale; it takes its video's moving objects' scale and only its
+offset is fitted. The fitted scale is reported (its deviation from 1, in %), and so is the raw
+error.
 
 Per condition: videos, tracks lost (an object not followed, or not measured in more than 10%
 of the frames it is in view outside the hand's, or whose fitted scale is off by more than 10%:
@@ -62,6 +64,10 @@ LOST_SHARE = 0.10
 #: the time, which the scale-and-offset calibration would otherwise absorb (a perspective
 #: camera's near-face magnification is 1-3% here).
 WRONG_SCALE = 0.10
+#: An object whose true centre moves less than this (px) does not determine its own scale
+#: (a struck cube that hardly moves: any scale fits its few px); it takes the median of the
+#: moving objects' scales in the same video (1 if none), and only its offset is fitted.
+MIN_TRAVEL = 40.0
 
 
 def lost_tracks(rec: dict) -> list[bool]:
@@ -73,10 +79,15 @@ def lost_tracks(rec: dict) -> list[bool]:
     return [bool(o["lost"] or abs(o["scale"] - 1.0) > WRONG_SCALE) for o in rec["objects"]]
 
 
-def calibrated_errors(est: np.ndarray, truth: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float]:
+def calibrated_errors(est: np.ndarray, truth: np.ndarray, centre: np.ndarray, scale: float | None = None
+                      ) -> tuple[np.ndarray, float]:
     """(m,) distances (px) between estimated and true centres (m, 2) after the least-squares
-    scale s about ``centre`` (2,) and offset t: est ~ centre + s (truth - centre) + t; and s."""
+    scale s about ``centre`` (2,) and offset t: est ~ centre + s (truth - centre) + t; and s.
+    With ``scale`` given, s is that and only t is fitted."""
     X, Y = truth - centre, est - centre
+    if scale is not None:
+        fit = centre + scale * X + np.mean(Y - scale * X, axis=0)
+        return np.linalg.norm(est - fit, axis=-1), float(scale)
     A = np.zeros((2 * len(X), 3))
     A[:, 0] = X.reshape(-1)
     A[0::2, 1] = 1.0
@@ -129,10 +140,21 @@ def analyse(video: Path) -> dict:
     hand[:hand_frames(truth), 0] = True
     rec["methods"] = list(obs.tracking.methods)
     rec["objects"] = []
-    for i in range(true_px.shape[1]):
+    n = true_px.shape[1]
+    travel = [float(np.linalg.norm(true_px[:, i] - true_px[0, i], axis=-1).max()) for i in range(n)]
+    fits = [calibrated_errors(obs.pixels[measured[:, i], i], true_px[measured[:, i], i], centre)
+            if measured[:, i].sum() >= 3 else None for i in range(n)]
+    moved = [f[1] for i, f in enumerate(fits) if f is not None and travel[i] >= MIN_TRAVEL]
+    for i in range(n):
         m = measured[:, i]
         raw = np.linalg.norm(obs.pixels[m, i] - true_px[m, i], axis=-1)
-        err, s = calibrated_errors(obs.pixels[m, i], true_px[m, i], centre) if m.sum() >= 3 else (raw, 1.0)
+        if fits[i] is None:
+            err, s = raw, 1.0
+        elif travel[i] >= MIN_TRAVEL:
+            err, s = fits[i]
+        else:  # its scale is not determined by its own track: the moving objects' (or none)
+            err, s = calibrated_errors(obs.pixels[m, i], true_px[m, i], centre,
+                                       float(np.median(moved)) if moved else 1.0)
         expected = view[:, i] & ~hand[:, i]
         dropped = int((expected & ~m).sum())
         rec["objects"].append({
