@@ -413,11 +413,19 @@ def test_rough_pass_follows_an_object_pushed_by_its_look_alike():
     assert err[:, 0].max() < 3.0, err[:, 0].round(1)
 
 
+def _klt_track(px: np.ndarray):
+    """A KLT track of one object measured in every frame of (N, 2) pixels ``px`` (20 features,
+    quality 1), as :func:`~galileo_jax.observe.track._cross_check` gets it."""
+    from galileo_jax.observe.tracks import Tracks
+
+    N = len(px)
+    return Tracks(px[:, None].copy(), np.ones((N, 1), bool), np.full((N, 1), 20), np.ones((N, 1)))
+
+
 def test_klt_track_on_a_hand_gives_way_to_the_colour_track():
     """A KLT track that goes up the ramp (features on the hand that let go) while the colour
     track goes down it is replaced by the colour track; a KLT track that goes down is kept."""
     from galileo_jax.observe.track import _cross_check
-    from galileo_jax.observe.tracks import Tracks
 
     N, down = 30, np.array([0.8, 0.6])
     t = np.arange(N)[:, None]
@@ -427,7 +435,7 @@ def test_klt_track_on_a_hand_gives_way_to_the_colour_track():
     colour = {0: (slide, ones, np.ones(N), -1, 10)}
     for klt, expected in ((hand, "colour"), (slide + 0.3, "features")):
         methods = ["features"]
-        tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+        tr = _klt_track(klt)
         out, _, _ = _cross_check(tr, colour, methods, [down], 5)
         assert methods == [expected]
         np.testing.assert_allclose(out.pixels[:, 0], slide if expected == "colour" else klt)
@@ -471,7 +479,6 @@ def test_cross_check_forgives_an_offset_that_drifts_with_the_position():
     points of the object whose image offset changes smoothly across the image (here 0 to 4 px
     over 300 px of travel): not a disagreement, so no frame is dropped; a 3 px jump is."""
     from galileo_jax.observe.track import _cross_check
-    from galileo_jax.observe.tracks import Tracks
 
     N = 50
     t = np.arange(N, dtype=float)
@@ -484,7 +491,7 @@ def test_cross_check_forgives_an_offset_that_drifts_with_the_position():
     ones = np.ones(N, bool)
     colour = {0: (colour_px, ones, np.ones(N), -1, 0)}
     methods = ["features"]
-    tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    tr = _klt_track(klt)
     out, agree, dropped = _cross_check(tr, colour, methods, None, 0)
     assert methods == ["features"] and agree[0] < 0.5
     assert dropped[0] == 3 and not out.valid[30:33, 0].any() and out.valid[:30, 0].all() and out.valid[33:, 0].all()
@@ -496,7 +503,6 @@ def test_cross_check_replaces_a_klt_track_stuck_on_the_scenery():
     the object, and the colour track, measured well all along, replaces it (a least-squares
     offset model had called the whole pair a disagreement and kept the stuck track)."""
     from galileo_jax.observe.track import _cross_check
-    from galileo_jax.observe.tracks import Tracks
 
     N = 60
     t = np.arange(N, dtype=float)
@@ -508,7 +514,7 @@ def test_cross_check_replaces_a_klt_track_stuck_on_the_scenery():
     ones = np.ones(N, bool)
     colour = {0: (colour_px, ones, np.ones(N), -1, 0)}
     methods = ["features"]
-    tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    tr = _klt_track(klt)
     out, agree, dropped = _cross_check(tr, colour, methods, None, 0)
     assert methods == ["colour"]
     assert out.valid[:, 0].all() and np.allclose(out.pixels[:, 0], colour_px)
@@ -520,7 +526,6 @@ def test_klt_track_that_jumped_at_a_turn_gives_way_to_the_colour_track():
     benchmark, perspective 960x540). The colour track, with no jump, replaces it; where
     the KLT track has no jump, a noisier colour track does not."""
     from galileo_jax.observe.track import _cross_check
-    from galileo_jax.observe.tracks import Tracks
 
     N = 60
     t = np.arange(N, dtype=float)
@@ -530,13 +535,13 @@ def test_klt_track_that_jumped_at_a_turn_gives_way_to_the_colour_track():
     klt = true + rng.normal(0, 0.05, true.shape)
     ones = np.ones(N, bool)
     colour = {0: (colour_px, ones, np.full(N, 0.85), -1, 0)}
-    tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    tr = _klt_track(klt)
     methods = ["features"]
     out, _, _ = _cross_check(tr, colour, methods, None, 0)
     assert methods == ["features"] and np.allclose(out.pixels[:, 0], klt)
     jumped = klt.copy()
     jumped[42:] += [10.0, -4.0]
-    tr = Tracks(jumped[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    tr = _klt_track(jumped)
     methods = ["features"]
     out, _, _ = _cross_check(tr, colour, methods, None, 0)
     assert methods == ["colour"] and np.allclose(out.pixels[:, 0], colour_px)
@@ -551,7 +556,7 @@ def test_klt_track_left_on_the_scenery_gives_way_to_the_colour_track():
     panel from the start and the object creeps (1 px a frame), so the offset between the two
     tracks never jumps (:func:`_klt_stepped` does not see it) and only the scenery tells."""
     from galileo_jax.observe.track import _cross_check
-    from galileo_jax.observe.tracks import Tracks, Window, as_gray
+    from galileo_jax.observe.tracks import Window, as_gray
 
     N, H, W = 40, 120, 240
     rng = np.random.default_rng(2)
@@ -571,7 +576,7 @@ def test_klt_track_left_on_the_scenery_gives_way_to_the_colour_track():
     ones = np.ones(N, bool)
     colour = {0: (true + rng.normal(0, 0.1, true.shape), ones, np.ones(N), -1, 0)}
     wins = [Window((8.0, 8.0), 0.0)]
-    tr = Tracks(klt[:, None].copy(), ones[:, None].copy(), np.full((N, 1), 20), np.ones((N, 1)))
+    tr = _klt_track(klt)
     methods = ["features"]
     _cross_check(tr, colour, methods, None, 0)  # without the frames: KLT is kept
     assert methods == ["features"]
