@@ -497,6 +497,12 @@ def test_cross_check_forgives_an_offset_that_drifts_with_the_position():
     assert dropped[0] == 3 and not out.valid[30:33, 0].any() and out.valid[:30, 0].all() and out.valid[33:, 0].all()
 
 
+def _sliding_left(n: int) -> np.ndarray:
+    """(n, 2) px: an object accelerating down and to the left from (800, 200)."""
+    t = np.arange(n, dtype=float)
+    return np.stack([800.0 - 0.3 * t ** 2, 200.0 + 0.06 * t ** 2], axis=1)
+
+
 def test_cross_check_replaces_a_klt_track_stuck_on_the_scenery():
     """KLT features that stay behind on the scenery while the object slides on (blurred
     checker) leave a long stretch hundreds of px off the colour track: the KLT track has left
@@ -505,9 +511,8 @@ def test_cross_check_replaces_a_klt_track_stuck_on_the_scenery():
     from galileo_jax.observe.track import _cross_check
 
     N = 60
-    t = np.arange(N, dtype=float)
     rng = np.random.default_rng(5)
-    true = np.stack([800.0 - 0.3 * t ** 2, 200.0 + 0.06 * t ** 2], axis=1)
+    true = _sliding_left(N)
     colour_px = true + rng.normal(0, 0.15, true.shape)
     klt = true + rng.normal(0, 0.1, true.shape)
     klt[40:] = klt[40]  # stuck from frame 40 on
@@ -528,9 +533,8 @@ def test_klt_track_that_jumped_at_a_turn_gives_way_to_the_colour_track():
     from galileo_jax.observe.track import _cross_check
 
     N = 60
-    t = np.arange(N, dtype=float)
     rng = np.random.default_rng(7)
-    true = np.stack([800.0 - 0.3 * t ** 2, 200.0 + 0.06 * t ** 2], axis=1)
+    true = _sliding_left(N)
     colour_px = true + rng.normal(0, 0.3, true.shape)
     klt = true + rng.normal(0, 0.05, true.shape)
     ones = np.ones(N, bool)
