@@ -655,6 +655,40 @@ def test_rough_pass_matches_a_motion_blurred_look():
     assert np.linalg.norm(blurred[0] - centre) < 0.5, blurred[0]
 
 
+def test_shutter_is_probed_only_where_the_streak_is_a_fair_share_of_the_object():
+    """While the camera's shutter is not known, an object moving fast is matched both sharp and
+    motion-blurred, and its matches vote on the shutter. At 14 px a frame a 12 px square's
+    streak (7 px over a half-frame shutter) is most of it, and it is probed; a 40 px square's is
+    under a fifth of it, where the sharp and blurred looks fit about equally (such near ties
+    voted a blurred video 'sharp' and lost a fast cube), and it is not, unless its sharp look
+    fits worse than it did."""
+    from galileo_jax.observe.rough import _candidates, _template
+
+    H, W, speed = 120, 240, 14.0
+
+    def draw(centres, side):
+        acc = np.zeros((H, W, 3))
+        for c in centres:
+            xs, ys = np.arange(W) + 0.5, np.arange(H) + 0.5
+            cov_x = np.clip(np.minimum(xs - c[0] + side / 2, c[0] + side / 2 - xs) + 0.5, 0, 1)
+            cov_y = np.clip(np.minimum(ys - c[1] + side / 2, c[1] + side / 2 - ys) + 0.5, 0, 1)
+            a = (cov_y[:, None] * cov_x[None, :])[..., None]
+            acc += 110.0 * (1 - a) + np.array([60.0, 200.0, 90.0]) * a
+        return np.clip(acc / len(centres), 0, 255).astype(np.uint8)
+
+    def blurred_candidates(side, recent):
+        tpl = _template(draw([(60.0, 60.0)], side), (60.0, 60.0), (side / 2, side / 2), 0.0)
+        centre = np.array([150.3, 60.0])
+        frame = draw([centre + [d, 0.0] for d in np.linspace(-speed / 4, speed / 4, 15)], side)
+        out = _candidates(frame, tpl, centre, np.array([speed, 0.0]), (side / 2, side / 2), recent)
+        return sum(o[4] for o in out)
+
+    steady = [40.0] * 5  # recent matches as poor as these: the sharp look does not fit worse
+    assert blurred_candidates(12.0, steady) > 0
+    assert blurred_candidates(40.0, steady) == 0
+    assert blurred_candidates(40.0, [0.5] * 5) > 0  # it fits worse than it did: blurred looks are tried
+
+
 def test_auto_falls_back_to_a_colour_track_that_lasts_longer(monkeypatch):
     """``tracker: auto``: where KLT loses an object at frame 20 and the colour tracker only at
     frame 40, the colour track stands in (measured up to 40, not after); where the colour

@@ -43,6 +43,11 @@ SHUTTERS = (0.5, 1.0)
 #: Speed (px per frame) from which the rough pass, while it does not know the camera's shutter,
 #: matches each object both sharp and motion-blurred, and counts which fits best (a vote).
 PROBE_SPEED = 12.0
+#: ... and at least this share of its length per frame: a streak shorter than a fair share of the
+#: object fits its sharp look about as well as its blurred one, and such near ties decided the
+#: vote wrongly (measured on the tracking benchmark: a blurred 42 px cube at 12-16 px a frame
+#: voted "sharp", and the sharp looks then fitted it at RMS 62-73 and lost it).
+PROBE_SHARE = 0.5
 #: Votes after which the shutter is decided for the rest of the pass ("sharp": blurred looks are
 #: no longer tried; a blurred look of a sharp, textured object is smooth and fits the scenery
 #: about as well, so it may win where the object turns and its sharp look fits worse).
@@ -317,7 +322,7 @@ def rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_fr
                 continue
             # near another object an impact may change its speed at once: its blur is not known
             near = _touching(i, px[prev, i], {}, px[prev], halves, gap=4.0 + float(np.linalg.norm(vel[i])))
-            probing[i] = not near and shutter is None and float(np.linalg.norm(vel[i])) >= PROBE_SPEED
+            probing[i] = not near and shutter is None and float(np.linalg.norm(vel[i])) >= _probe_speed(halves[i])
             options[i] = _candidates(frames[k], turned[i], pred, vel[i], halves[i], recent_rms[i][-10:],
                                      blurred=not near, scenery=scenery, tilts=tilts, shutter=shutter,
                                      impacts=_impacts(i, px[prev], vel, halves) if near else ())
@@ -373,6 +378,12 @@ def rough_pass(frames, start, halves, angles0, k0: int, step: int, fps, first_fr
                 turned[i] = _evolve(turned[i], frames[k], centre, EVOLVE)
         prev = k
     return px, rms, verified, lost
+
+
+def _probe_speed(half) -> float:
+    """Speed (px per frame) from which an object's matches vote on the camera's shutter
+    (:data:`PROBE_SPEED`, :data:`PROBE_SHARE` of its length ``2 * half[0]``)."""
+    return max(PROBE_SPEED, PROBE_SHARE * 2.0 * float(half[0]))
 
 
 def _no_match(recent: list) -> float:
@@ -479,7 +490,7 @@ def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: b
     that segment), and where it is much worse, three times wider. With ``blurred`` (not near
     another object) and a ``shutter`` not known to be "sharp", an object moving at least
     :data:`BLUR_SPEED` px per frame whose look fits worse than it did (or, while ``shutter`` is
-    None, at least :data:`PROBE_SPEED`) is also matched motion-blurred (:func:`_blurred`, over
+    None, at least :func:`_probe_speed`) is also matched motion-blurred (:func:`_blurred`, over
     each of :data:`SHUTTERS` of a frame's motion): a sharp look matched to a long streak slides
     along it. Touching another object, it is also searched where an impact may send it
     (``impacts``: segments from :func:`_impacts`). A candidate pays for its distance from the
@@ -505,7 +516,7 @@ def _candidates(frame, tpl: _Template, pred, vel, half, recent: list, blurred: b
     # the sharp look fits worse than it did (or the shutter is still being learnt at speed):
     # also try it blurred
     blur = blurred and shutter != "sharp" and speed >= BLUR_SPEED and \
-        (best(out) > 1.1 * typical + 2.0 or (shutter is None and speed >= PROBE_SPEED))
+        (best(out) > 1.1 * typical + 2.0 or (shutter is None and speed >= _probe_speed(half)))
     if blur:
         out += matches(tpl, local, blurred_looks(tpl))
     if best(out) > typical:  # a turn (onto the floor, an impact)
