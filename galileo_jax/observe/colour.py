@@ -251,12 +251,16 @@ def _unmix(de: np.ndarray, dd: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, 
     d.e_k, ``ee`` (K, P) = |e_k|^2), the alpha a_k = clip(d.e_k / |e_k|^2, 0, 1) and squared
     residual |d - a_k e_k|^2 of the colour that leaves the least (the first on ties):
     ``(alpha, residual^2)``, each (P,)."""
-    a = np.clip(de / np.maximum(ee, 1e-6), 0.0, 1.0)
-    r2 = dd[None] - 2 * a * de + a * a * ee
-    if len(r2) == 1:
-        return a[0], r2[0]
-    k = np.argmin(r2, axis=0)[None]
-    return np.take_along_axis(a, k, 0)[0], np.take_along_axis(r2, k, 0)[0]
+    best_a = best_r2 = None
+    for de_k, ee_k in zip(de, ee):  # K is a few colours: a running best, no (K, P) index arrays
+        a = np.clip(de_k / np.maximum(ee_k, 1e-6), 0.0, 1.0)
+        r2 = dd - 2 * a * de_k + a * a * ee_k
+        if best_a is None:
+            best_a, best_r2 = a, r2
+        else:
+            better = r2 < best_r2
+            best_a, best_r2 = np.where(better, a, best_a), np.where(better, r2, best_r2)
+    return best_a, best_r2
 
 
 def place_template(template: np.ndarray, t_centre, angle: float, at, shape) -> np.ndarray:
