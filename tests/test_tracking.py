@@ -845,8 +845,9 @@ def test_real_plain_clip_keeps_no_frame_after_its_object_left():
 def test_bridge_follows_an_object_the_rough_track_left():
     """Where the rough pass lost an object (its frames unmeasured from some frame on), the
     bridge follows it on from its own last measurements: a square sliding to rest is measured
-    in every frame of the gap within 0.2 px; where it has gone (removed from the frames) no
-    frame is taken, and the coast ends."""
+    in every frame of the gap within 0.2 px, also in one where something far from it was
+    measured (where the rough track had gone: the bridge goes on and replaces it); where it has
+    gone (removed from the frames) no frame is taken, and the coast ends."""
     from galileo_jax.observe.matte import _bridge
 
     bg, colour, half, size = (200, 190, 180), (40, 160, 60), 6.0, 120
@@ -865,6 +866,7 @@ def test_bridge_follows_an_object_the_rough_track_left():
     pixels[:10, 0] = truth[:10]
     quality = np.zeros((N, 1))
     quality[:10] = 0.95
+    pixels[15, 0], quality[15, 0] = (110.0, 20.0), 0.8  # something else, where the rough track went
     _bridge(frames, background, [[(truth[0], look)]], pixels, quality, np.zeros((N, 1), bool),
             [np.array([half, half])], np.zeros((N, 1)), 0.5)
     assert np.all(quality[10:24, 0] >= 0.8), quality[:, 0]
@@ -890,6 +892,66 @@ def test_objects_out_of_their_order_are_not_measured():
     # for the other object) judges nothing
     measured[2, 0] = measured[3, 1] = False
     assert _in_order(pixels, start, measured).all()
+
+
+def test_a_look_alike_of_a_lost_object_is_doubted_once_it_moves():
+    """Object 1 is lost at frame 4. Object 2, a look-alike (its colours a shade of object 1's,
+    within the matte's gain), is itself while it rests where it was; from the frame it moves
+    on, it may be object 1, so those frames are doubted. An object of another colour, or a
+    look-alike that never moves, keeps every frame; nothing is doubted while no track is lost."""
+    from galileo_jax.observe.matte import _identity_doubted, _look_alike
+
+    blue = Palette(np.array([[209.0, 215.0, 247.0]], np.float32), 47.0)
+    shaded = Palette(np.array([[244.0, 235.0, 250.0], [186.0, 178.0, 197.0]], np.float32), 50.0)  # + a face in shade
+    red = Palette(np.array([[40.0, 40.0, 220.0]], np.float32), 40.0)
+    assert _look_alike(blue, shaded) and _look_alike(shaded, blue) and not _look_alike(blue, red)
+    N = 10
+    pixels = np.zeros((N, 2, 2))
+    pixels[:, 0, 0] = np.arange(N) * 20.0 + 300.0  # object 1, sliding
+    pixels[:, 1] = (80.0, 300.0)
+    pixels[6:, 1, 0] = [95.0, 100.0, 101.0, 101.0]  # object 2 struck at frame 6
+    valid = np.ones((N, 2), bool)
+    valid[4:, 0] = False
+    lost = np.array([4, -1])
+    halves = [np.array([15.0, 15.0])] * 2
+    doubted = _identity_doubted(pixels, valid, lost, [shaded, blue], halves)
+    assert doubted[:, 0].sum() == 0 and np.flatnonzero(doubted[:, 1]).tolist() == [6, 7, 8, 9]
+    assert not _identity_doubted(pixels, valid, lost, [red, blue], halves).any()
+    assert not _identity_doubted(pixels, valid, np.array([-1, -1]), [shaded, blue], halves).any()
+    resting = pixels.copy()
+    resting[:, 1] = (80.0, 300.0)
+    resting[7:, 1, 0] += 0.6  # a resting object's measurements scatter
+    assert not _identity_doubted(resting, valid, lost, [shaded, blue], halves).any()
+
+
+def test_background_learnt_from_a_resting_object_is_unlearnt():
+    """Where the background under an object resting in its start frame has the object's own
+    colour (the frames taken as showing it free showed the object), it is inpainted from the
+    surroundings, and the object then stands out; an object of the background's own colour,
+    and a background that is right, are left as they were."""
+    from galileo_jax.observe.colour import thresholds, unlearn_objects
+
+    H, W, c, half = 120, 160, np.array([80.0, 60.0]), np.array([12.0, 12.0])
+    grey, blue = np.array([216.0, 217.0, 220.0]), np.array([249.0, 214.0, 208.0])
+    frame = np.tile(grey, (H, W, 1))
+    inside = footprint((H, W), c, half, 0.0)
+    frame[inside] = blue
+    frame = np.clip(frame + np.random.default_rng(0).normal(0.0, 1.5, frame.shape), 0, 255).astype(np.uint8)
+    wrong = np.tile(grey, (H, W, 1)).astype(np.float32)
+    wrong[footprint((H, W), c + [5.0, 0.0], half, 0.0)] = blue  # learnt from the object, 5 px off
+    bg = ColourBackground(wrong, 1.5)
+    fixed = unlearn_objects(bg, frame, [c], [half], [0.0])
+    thr = thresholds(1.5)[0]
+    core = footprint((H, W), c, 0.7 * half, 0.0)
+    assert np.mean(np.linalg.norm(frame[core] - wrong[core], axis=-1) < thr) > 0.5  # the failure
+    assert np.linalg.norm(fixed.image[core] - grey, axis=-1).max() < thr
+    near = footprint((H, W), c, half, 0.0, grow=12.0)
+    assert np.abs(fixed.image[~near] - wrong[~near]).max() == 0.0  # only around the object
+    right = ColourBackground(np.tile(grey, (H, W, 1)).astype(np.float32), 1.5)
+    assert unlearn_objects(right, frame, [c], [half], [0.0]) is right
+    same = ColourBackground(np.tile(grey, (H, W, 1)).astype(np.float32), 1.5)
+    plain = np.tile(grey, (H, W, 1)).astype(np.uint8)  # an object of the background's colour
+    assert unlearn_objects(same, plain, [c], [half], [0.0]) is same
 
 
 def test_look_alikes_swapped_at_a_collision_are_exchanged_back():

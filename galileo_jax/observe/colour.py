@@ -157,6 +157,60 @@ def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAM
     return ColourBackground(out, _noise_sd(part, inner, cut, idx), median)
 
 
+def unlearn_objects(background: ColourBackground, frame: np.ndarray, centres, halves, angles,
+                    like: float = 0.5, grow: float = 3.0) -> ColourBackground:
+    """The background with each object's own colour removed where it was learned as background.
+
+    An object resting at ``centres`` in ``frame`` must differ from the background there. Where
+    more than ``like`` of its inner pixels (its footprint shrunk to 70%) are within the
+    background threshold of it (:func:`thresholds`), the frames taken as showing those pixels
+    free showed the object (a collision that the first track got wrong, so that the object's
+    footprint was left out elsewhere): the background under its footprint (grown by ``grow``
+    px), and any background of the object's colour near it, is inpainted from the
+    surroundings (``cv2.inpaint``, Telea), and kept if the object
+    then stands out. An object whose colour is that of the true background stays as it was.
+    Measured on the held-out tracking video world_11: a grey-blue cube struck 25 px to the
+    side had 36 px of its start footprint learned as background, and its 39 resting frames
+    measured at quality 0.25.
+
+    Args:
+        background: from :func:`colour_background`.
+        frame: (H, W, 3) uint8 BGR frame in which the objects rest at ``centres`` (n, 2) px.
+        halves: per object (half along, half across) of its footprint (px).
+        angles: (n,) footprint tilts (rad).
+
+    Returns:
+        :class:`ColourBackground` (the same object if nothing changed).
+    """
+    bg_thr, _ = thresholds(background.noise_sd)
+    image = None
+    for c, half, a in zip(np.asarray(centres, float), halves, np.asarray(angles, float)):
+        box = crop_box(frame.shape, c, math.hypot(*half) + grow + 8)
+        if box is None:
+            continue
+        lo, hi = box
+        img = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
+        inner = footprint(img.shape, c, np.asarray(half) * 0.7, a, offset=lo)
+
+        def share_like(bg_crop):
+            return float(np.mean(np.linalg.norm(img - bg_crop, axis=-1)[inner] < bg_thr)) if inner.any() else 0.0
+
+        current = (background.image if image is None else image)[lo[1]:hi[1], lo[0]:hi[0]]
+        if share_like(current) <= like:
+            continue
+        # the footprint, and any background near it of the object's colour (learnt where the
+        # object stood in the frames taken as free, which need not be exactly here)
+        colour = np.median(img[inner], axis=0)
+        learnt = np.linalg.norm(current - colour, axis=-1) < bg_thr
+        hole = (footprint(img.shape, c, half, a, grow=grow, offset=lo) | learnt).astype(np.uint8)
+        hole = cv2.dilate(hole, CROSS)
+        filled = cv2.inpaint(np.clip(current, 0, 255).astype(np.uint8), hole, 5, cv2.INPAINT_TELEA).astype(np.float32)
+        if share_like(filled) <= like:
+            image = background.image.copy() if image is None else image
+            image[lo[1]:hi[1], lo[0]:hi[0]] = np.where(hole[..., None] > 0, filled, current)
+    return background if image is None else background._replace(image=image)
+
+
 def _fill_from_all_frames(frames, covered, never: np.ndarray, out: np.ndarray) -> np.ndarray:
     """Fill ``never`` pixels (covered in every sampled frame) from any frame that shows them
     free (median); returns the pixels still never seen."""
