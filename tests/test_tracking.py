@@ -926,9 +926,11 @@ def test_a_look_alike_of_a_lost_object_is_doubted_once_it_moves():
 
 def test_background_learnt_from_a_resting_object_is_unlearnt():
     """Where the background under an object resting in its start frame has the object's own
-    colour (the frames taken as showing it free showed the object), it is inpainted from the
-    surroundings, and the object then stands out; an object of the background's own colour,
-    and a background that is right, are left as they were."""
+    colour (the frames taken as showing it free showed the object, which later moved on), it
+    is inpainted from the surroundings, and the object then stands out; an object of the
+    background's own colour, a background that is right, and a patch of static scenery (the
+    same in every frame: background, though it differs from its surroundings) are left as they
+    were."""
     from galileo_jax.observe.colour import thresholds, unlearn_objects
 
     H, W, c, half = 120, 160, np.array([80.0, 60.0]), np.array([12.0, 12.0])
@@ -936,11 +938,16 @@ def test_background_learnt_from_a_resting_object_is_unlearnt():
     frame = np.tile(grey, (H, W, 1))
     inside = footprint((H, W), c, half, 0.0)
     frame[inside] = blue
-    frame = np.clip(frame + np.random.default_rng(0).normal(0.0, 1.5, frame.shape), 0, 255).astype(np.uint8)
+    rng = np.random.default_rng(0)
+    moved = np.tile(grey, (H, W, 1))
+    moved[footprint((H, W), c + [40.0, 0.0], half, 0.0)] = blue  # struck: it left its start
+    frames = np.stack([np.clip(f + rng.normal(0.0, 1.5, f.shape), 0, 255) for f in (frame, frame, moved)])
+    frames = frames.astype(np.uint8)
+    frame = frames[0]
     wrong = np.tile(grey, (H, W, 1)).astype(np.float32)
     wrong[footprint((H, W), c + [5.0, 0.0], half, 0.0)] = blue  # learnt from the object, 5 px off
     bg = ColourBackground(wrong, 1.5)
-    fixed = unlearn_objects(bg, frame, [c], [half], [0.0])
+    fixed = unlearn_objects(bg, frames, 0, [c], [half], [0.0])
     thr = thresholds(1.5)[0]
     core = footprint((H, W), c, 0.7 * half, 0.0)
     assert np.mean(np.linalg.norm(frame[core] - wrong[core], axis=-1) < thr) > 0.5  # the failure
@@ -948,10 +955,11 @@ def test_background_learnt_from_a_resting_object_is_unlearnt():
     near = footprint((H, W), c, half, 0.0, grow=12.0)
     assert np.abs(fixed.image[~near] - wrong[~near]).max() == 0.0  # only around the object
     right = ColourBackground(np.tile(grey, (H, W, 1)).astype(np.float32), 1.5)
-    assert unlearn_objects(right, frame, [c], [half], [0.0]) is right
+    assert unlearn_objects(right, frames, 0, [c], [half], [0.0]) is right
     same = ColourBackground(np.tile(grey, (H, W, 1)).astype(np.float32), 1.5)
-    plain = np.tile(grey, (H, W, 1)).astype(np.uint8)  # an object of the background's colour
-    assert unlearn_objects(same, plain, [c], [half], [0.0]) is same
+    plain = np.tile(grey, (3, H, W, 1)).astype(np.uint8)  # an object of the background's colour
+    assert unlearn_objects(same, plain, 0, [c], [half], [0.0]) is same
+    assert unlearn_objects(bg, frames[:2], 0, [c], [half], [0.0]) is bg  # never moves: scenery
 
 
 def test_look_alikes_swapped_at_a_collision_are_exchanged_back():

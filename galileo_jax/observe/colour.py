@@ -157,25 +157,28 @@ def colour_background(frames: np.ndarray, covered=None, n: int = BACKGROUND_FRAM
     return ColourBackground(out, _noise_sd(part, inner, cut, idx), median)
 
 
-def unlearn_objects(background: ColourBackground, frame: np.ndarray, centres, halves, angles,
+def unlearn_objects(background: ColourBackground, frames: np.ndarray, k: int, centres, halves, angles,
                     like: float = 0.5, grow: float = 3.0) -> ColourBackground:
     """The background with each object's own colour removed where it was learned as background.
 
-    An object resting at ``centres`` in ``frame`` must differ from the background there. Where
+    An object resting at ``centres`` in frame ``k`` must differ from the background there. Where
     more than ``like`` of its inner pixels (its footprint shrunk to 70%) are within the
-    background threshold of it (:func:`thresholds`), the frames taken as showing those pixels
-    free showed the object (a collision that the first track got wrong, so that the object's
-    footprint was left out elsewhere): the background under its footprint (grown by ``grow``
-    px), and any background of the object's colour near it, is inpainted from the
-    surroundings (``cv2.inpaint``, Telea), and kept if the object
-    then stands out. An object whose colour is that of the true background stays as it was.
+    background threshold of it (:func:`thresholds`), and yet more than ``like`` of them change
+    by more than that threshold in another frame (something there moved: not a patch of static
+    scenery, which is background), the frames taken as showing those pixels free showed the
+    object (a collision that the first track got wrong, so that the object's footprint was left
+    out elsewhere): the background under its footprint (grown by ``grow`` px), and any
+    background of the object's colour near it, is inpainted from the surroundings
+    (``cv2.inpaint``, Telea), and kept if the object then stands out. An object whose colour is
+    that of the true background stays as it was.
     Measured on the held-out tracking video world_11: a grey-blue cube struck 25 px to the
     side had 36 px of its start footprint learned as background, and its 39 resting frames
     measured at quality 0.25.
 
     Args:
         background: from :func:`colour_background`.
-        frame: (H, W, 3) uint8 BGR frame in which the objects rest at ``centres`` (n, 2) px.
+        frames: (N, H, W, 3) uint8 BGR frames; in frame ``k`` the objects rest at ``centres``
+            (n, 2) px.
         halves: per object (half along, half across) of its footprint (px).
         angles: (n,) footprint tilts (rad).
 
@@ -184,6 +187,7 @@ def unlearn_objects(background: ColourBackground, frame: np.ndarray, centres, ha
     """
     bg_thr, _ = thresholds(background.noise_sd)
     image = None
+    frame = frames[k]
     for c, half, a in zip(np.asarray(centres, float), halves, np.asarray(angles, float)):
         box = crop_box(frame.shape, c, math.hypot(*half) + grow + 8)
         if box is None:
@@ -197,6 +201,10 @@ def unlearn_objects(background: ColourBackground, frame: np.ndarray, centres, ha
 
         current = (background.image if image is None else image)[lo[1]:hi[1], lo[0]:hi[0]]
         if share_like(current) <= like:
+            continue
+        others = frames[spread_indices(len(frames), BACKGROUND_FRAMES), lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
+        changed = (np.linalg.norm(others - img, axis=-1) > bg_thr).any(axis=0)
+        if changed[inner].mean() <= like:  # static scenery: it is background
             continue
         # the footprint, and any background near it of the object's colour (learnt where the
         # object stood in the frames taken as free, which need not be exactly here)

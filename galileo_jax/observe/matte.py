@@ -332,7 +332,7 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     for grow_extra in grows if measure_frames is None else grows[:1]:
         bg = colour_background(frames, footprints_along(px, halves, angles, shape, 3.0 + 0.3 * speed + grow_extra),
                                region=region, median=plain if bg is None else bg.median)
-        bg = unlearn_objects(bg, frames[start_frame], start, halves, angles0)
+        bg = unlearn_objects(bg, frames, start_frame, start, halves, angles0)
         looks = []
         for i in range(n):
             for after_moving in (True, False):  # the frames it rested in if the others show no object
