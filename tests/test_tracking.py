@@ -913,15 +913,14 @@ def test_a_look_alike_of_a_lost_object_is_doubted_once_it_moves():
     valid = np.ones((N, 2), bool)
     valid[4:, 0] = False
     lost = np.array([4, -1])
-    halves = [np.array([15.0, 15.0])] * 2
-    doubted = _identity_doubted(pixels, valid, lost, [shaded, blue], halves)
+    doubted = _identity_doubted(pixels, valid, lost, [shaded, blue])
     assert doubted[:, 0].sum() == 0 and np.flatnonzero(doubted[:, 1]).tolist() == [6, 7, 8, 9]
-    assert not _identity_doubted(pixels, valid, lost, [red, blue], halves).any()
-    assert not _identity_doubted(pixels, valid, np.array([-1, -1]), [shaded, blue], halves).any()
+    assert not _identity_doubted(pixels, valid, lost, [red, blue]).any()
+    assert not _identity_doubted(pixels, valid, np.array([-1, -1]), [shaded, blue]).any()
     resting = pixels.copy()
     resting[:, 1] = (80.0, 300.0)
     resting[7:, 1, 0] += 0.6  # a resting object's measurements scatter
-    assert not _identity_doubted(resting, valid, lost, [shaded, blue], halves).any()
+    assert not _identity_doubted(resting, valid, lost, [shaded, blue]).any()
 
 
 def test_background_learnt_from_a_resting_object_is_unlearnt():
