@@ -623,6 +623,20 @@ def test_rough_pass_matches_an_object_on_new_scenery_against_the_scenery():
     assert np.linalg.norm(plain - [97.2, 60.6]) > 2.0, plain  # the failure the composite removes
 
 
+def _exposure_frame(centres, side: float, shape) -> np.ndarray:
+    """A green square of ``side`` px on grey, anti-aliased (sub-pixel coverage), averaged over
+    its ``centres`` (px) during the exposure: (H, W, 3) uint8 for ``shape`` (H, W)."""
+    H, W = shape
+    xs, ys = np.arange(W) + 0.5, np.arange(H) + 0.5
+    acc = np.zeros((H, W, 3))
+    for c in centres:
+        cov_x = np.clip(np.minimum(xs - c[0] + side / 2, c[0] + side / 2 - xs) + 0.5, 0, 1)
+        cov_y = np.clip(np.minimum(ys - c[1] + side / 2, c[1] + side / 2 - ys) + 0.5, 0, 1)
+        a = (cov_y[:, None] * cov_x[None, :])[..., None]
+        acc += 110.0 * (1 - a) + np.array([60.0, 200.0, 90.0]) * a
+    return np.clip(acc / len(centres), 0, 255).astype(np.uint8)
+
+
 def test_rough_pass_matches_a_motion_blurred_look():
     """A plain square moving 16 px during the exposure is a streak: its sharp look fits it
     badly (the RMS difference that, growing with the speed, had the rough pass lose a fast
@@ -630,19 +644,8 @@ def test_rough_pass_matches_a_motion_blurred_look():
     the trial shutter shares fits it at under half that RMS, within half a pixel."""
     from galileo_jax.observe.rough import _blurred, _match, _template
 
-    H, W, side = 80, 160, 16
-
     def draw(centres):
-        acc = np.zeros((H, W, 3))
-        for c in centres:
-            img = np.full((H, W, 3), 110.0)
-            x0, y0 = c[0] - side / 2, c[1] - side / 2  # anti-aliased edges: sub-pixel coverage
-            xs, ys = np.arange(W) + 0.5, np.arange(H) + 0.5
-            cov_x = np.clip(np.minimum(xs - x0, x0 + side - xs) + 0.5, 0, 1)
-            cov_y = np.clip(np.minimum(ys - y0, y0 + side - ys) + 0.5, 0, 1)
-            a = cov_y[:, None] * cov_x[None, :]
-            acc += img * (1 - a[..., None]) + np.array([60.0, 200.0, 90.0]) * a[..., None]
-        return np.clip(acc / len(centres), 0, 255).astype(np.uint8)
+        return _exposure_frame(centres, 16, (80, 160))
 
     still = draw([np.array([40.0, 40.0])])
     centre = np.array([100.3, 40.0])
@@ -664,17 +667,10 @@ def test_shutter_is_probed_only_where_the_streak_is_a_fair_share_of_the_object()
     fits worse than it did."""
     from galileo_jax.observe.rough import _candidates, _template
 
-    H, W, speed = 120, 240, 14.0
+    speed = 14.0
 
     def draw(centres, side):
-        acc = np.zeros((H, W, 3))
-        for c in centres:
-            xs, ys = np.arange(W) + 0.5, np.arange(H) + 0.5
-            cov_x = np.clip(np.minimum(xs - c[0] + side / 2, c[0] + side / 2 - xs) + 0.5, 0, 1)
-            cov_y = np.clip(np.minimum(ys - c[1] + side / 2, c[1] + side / 2 - ys) + 0.5, 0, 1)
-            a = (cov_y[:, None] * cov_x[None, :])[..., None]
-            acc += 110.0 * (1 - a) + np.array([60.0, 200.0, 90.0]) * a
-        return np.clip(acc / len(centres), 0, 255).astype(np.uint8)
+        return _exposure_frame(centres, side, (120, 240))
 
     def blurred_candidates(side, recent):
         tpl = _template(draw([(60.0, 60.0)], side), (60.0, 60.0), (side / 2, side / 2), 0.0)
