@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=("auto", "mjx", "mujoco"),
                    help="simulator of the rollouts: mjx (JAX, differentiable), mujoco (C MuJoCo's batched rollouts) "
                         "or auto (default: mujoco unless the fit needs MJX, on a GPU too)")
+    p.add_argument("--scale-tolerance", type=float, metavar="TOL",
+                   help="relative tolerance of the camera's scale where the scene file states none (default 0.03: "
+                        "grad and mh fit a nuisance scale_error within +-TOL; 0 takes the scale as exact)")
     p.add_argument("--likelihood", help="likelihood kind: gaussian_iid (default), gaussian_ma1, seed_gaussian, emd, rms")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
@@ -80,6 +83,11 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         cfg.engine = args.engine
     if args.cnn_model is not None:
         cfg.cnn.model = args.cnn_model
+    if args.scale_tolerance is not None:
+        if not 0.0 <= args.scale_tolerance <= 0.3:
+            raise GalileoError(f"--scale-tolerance must be between 0 and 0.3 (a relative error), got "
+                               f"{args.scale_tolerance:g}")
+        cfg.scale_tolerance = args.scale_tolerance
     if args.effects is not None:
         from galileo_jax.effects import resolve_effects
 

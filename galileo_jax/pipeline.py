@@ -291,6 +291,17 @@ def track_video(video: Path, scene: Scene, cfg: FitConfig, *, fps: float | None 
     return Tracked(Path(video), clip, obs, cnn_model, time.perf_counter() - t)
 
 
+def scene_for_fit(scene: Scene, cfg: FitConfig, method: str = "grad", init: str = "prior") -> Scene:
+    """The scene a fit of ``method`` works with: where the camera states no ``scale_tolerance``,
+    ``cfg.scale_tolerance`` (:attr:`~galileo_jax.config.FitConfig.scale_tolerance`), so that grad
+    and mh fit the nuisance ``scale_error``. The CNN's network knows the base model's coordinates
+    only and the seed's sampler the physical ones: ``--method cnn``, ``--init cnn`` and ``--method
+    seed`` keep the scene as stated."""
+    if method in ("cnn", "seed") or init == "cnn":
+        return scene
+    return scene.with_scale_tolerance(cfg.scale_tolerance)
+
+
 def problem_options(scene: Scene, cfg: FitConfig) -> dict:
     """:class:`Problem`'s likelihood, sd_model, effects and engine for a fit of ``scene`` with ``cfg``."""
     return dict(likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects,
@@ -319,6 +330,7 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     """
     tracked = track_video(video, scene, cfg, fps=fps, method=method, init=init, progress=progress)
     t = time.perf_counter()
+    scene = scene_for_fit(scene, cfg, method, init)
     try:
         problem = Problem(scene, tracked.observation, **problem_options(scene, cfg))
     except ValueError as err:
@@ -408,6 +420,7 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
     by_fps: dict[float, list[int]] = {}
     for j, tr in tracked.items():
         by_fps.setdefault(float(tr.observation.fps), []).append(j)
+    scene = scene_for_fit(scene, cfg)
     for members in by_fps.values():
         t = time.perf_counter()
         try:
@@ -461,7 +474,8 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     timings["observe_s"] = time.perf_counter() - t
     t = time.perf_counter()
     try:
-        problems = [Problem(s, o, **problem_options(s, cfg)) for (_, s), o in zip(inputs, observations)]
+        problems = [Problem(scene_for_fit(s, cfg, method), o, **problem_options(s, cfg))
+                    for (_, s), o in zip(inputs, observations)]
         joint = JointProblem(problems, per_video)
     except ValueError as err:
         raise GalileoError(str(err)) from None

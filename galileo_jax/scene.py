@@ -166,12 +166,16 @@ class Camera(_Strict):
     is (a scale read off a hand-held ruler, a reference that is not in the plane of motion):
     the fit then carries a nuisance ``scale_error`` uniform on +-tolerance, the observed
     displacements being (1 + scale_error) times the true ones (0: the scale is exact). Unset
-    (None), ``fit`` takes the scale as exact and ``diagnose`` allows its own default
-    (:attr:`galileo_jax.criticism.diagnosis.DiagnoseSettings.scale_tolerance`, 3%): a few-percent scale
-    error is as large as the effects it looks for. With a perspective camera the tracked
-    surface (an object's front face) is nearer the camera than the plane of the objects'
-    centres, where the scale is measured; for motion parallel to the image that too is a
-    uniform scale error (a 6 cm cube 2.2 m away: ~1.4%), so the same nuisance covers it.
+    (None), ``fit`` and ``diagnose`` allow their own defaults
+    (:attr:`galileo_jax.config.FitConfig.scale_tolerance` and
+    :attr:`galileo_jax.criticism.diagnosis.DiagnoseSettings.scale_tolerance`, both 3%): a scale read
+    off a ruler in the image is rarely better than a few percent, and a few-percent scale error
+    biases the frictions as much as their intervals are wide (``fit --method cnn`` and
+    ``--init cnn`` take an unstated scale as exact: the network knows the base model only).
+    With a perspective camera the tracked surface (an object's front face) is nearer the camera
+    than the plane of the objects' centres, where the scale is measured; for motion parallel to
+    the image that too is a uniform scale error (a 6 cm cube 2.2 m away: ~1.4%), so the same
+    nuisance covers it.
     """
 
     pixels_per_metre: PositiveFloat | None = None
@@ -305,6 +309,15 @@ class Scene(_Strict):
             if obj.friction is None:
                 names.append(f"k{i}")
         return names
+
+    def with_scale_tolerance(self, tolerance: float) -> "Scene":
+        """This scene with ``camera.scale_tolerance`` = ``tolerance`` where the camera states none
+        (a stated tolerance, 0 included, is kept; ``tolerance`` <= 0 changes nothing): the
+        default calibration nuisance of ``fit`` (:attr:`galileo_jax.config.FitConfig.scale_tolerance`)
+        and ``diagnose`` (:attr:`galileo_jax.criticism.settings.DiagnoseSettings.scale_tolerance`)."""
+        if self.camera.scale_tolerance is not None or tolerance <= 0:
+            return self
+        return self.model_copy(update={"camera": self.camera.model_copy(update={"scale_tolerance": float(tolerance)})})
 
     def mass_scale_known(self) -> bool:
         """True when a known mass fixes the absolute mass scale."""

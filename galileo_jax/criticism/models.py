@@ -228,10 +228,7 @@ def pooled_rms(values: Sequence[float], weights: Sequence[float]) -> float:
 def with_calibration_nuisances(scene: Scene, settings: DiagnoseSettings) -> Scene:
     """``scene`` with the diagnosis's default calibration tolerance where it states none
     (``camera.scale_tolerance`` unset: ``settings.scale_tolerance``); a stated one, 0 included, is kept."""
-    if scene.camera.scale_tolerance is not None or settings.scale_tolerance <= 0:
-        return scene
-    return scene.model_copy(update={"camera": scene.camera.model_copy(
-        update={"scale_tolerance": float(settings.scale_tolerance)})})
+    return scene.with_scale_tolerance(settings.scale_tolerance)
 
 
 def candidate_effects(scene: Scene, names=None, exclude=()) -> tuple[Effect, ...]:

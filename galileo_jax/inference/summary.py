@@ -75,7 +75,8 @@ def _effect_names(space: ParamSpace) -> list[str]:
 RELEASE_NOTE = ("release time minus the tracker's estimate (s), fitted with the physics (with initial_push: "
                 "when a push-free slide would have started; the pushed object leaves v0 / a later)")
 #: Report note of the camera's scale error.
-SCALE_NOTE = "relative error of the camera's scale (observed / true displacement - 1), within +-camera.scale_tolerance"
+SCALE_NOTE = ("relative error of the camera's scale (observed / true displacement - 1), a calibration nuisance within "
+              "+-camera.scale_tolerance (fit's --scale-tolerance where the scene states none, 3% by default)")
 
 
 def _effect_note(name: str) -> str:

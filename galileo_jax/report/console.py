@@ -86,8 +86,9 @@ def _adequacy_lines(adequacy: dict, video, scene) -> list[str]:
         return []
     lines = [f"  fit adequacy: {adequacy['verdict']}"]
     if not adequacy["adequate"] and not adequacy["looks_like_noise"]:
-        scale = (" a calibration error (a scale measured by hand is rarely better than a few percent: state "
-                 "camera.scale_tolerance, e.g. 0.03, to fit it) or" if scene.camera.scale_tolerance is None else "")
+        scale = (" a calibration error (this fit took the camera's scale as exact, and a scale measured by hand is "
+                 "rarely better than a few percent: --scale-tolerance 0.03 or camera.scale_tolerance fits it) or"
+                 if not scene.camera.scale_tolerance else "")
         lines.append("  The model misses something here (the estimates and intervals above assume it does not):"
                      f"{scale} a physical effect; python -m galileo_jax.diagnose {video} looks for both.")
     return lines
