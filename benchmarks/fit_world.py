@@ -134,7 +134,8 @@ def main(argv=None) -> int:
         records.append(cached_record(sub / video.name, lambda v: fit_one(v, args.config), args.rerun))
     ok = [r for r in records if "error" not in r]
     rows = ["| video | hand | k1 true / est | k2 true / est | phi true / est | in 90% (k1, k2, phi) "
-            "| RMSE / noise (max) | scale error (%) | other optima (log L lower) | methods | dropped | time (s) |", "|" + "---|" * 12]
+            "| RMSE / noise (max) | scale error (%) | other optima (log L lower) | methods | dropped | time (s) |",
+            "|" + "---|" * 12]
     for r in records:
         if "error" in r:
             rows.append(f"| {r['video']} | {'yes' if r['hand'] else 'no'} | failed: {r['error'][:120]} |" + " |" * 9)
@@ -145,8 +146,7 @@ def main(argv=None) -> int:
         rows.append(f"| {r['video']} | {'yes' if r['hand'] else 'no'} | "
                     + " | ".join(f"{r['truth'][n]:.3f} / {r[n]['estimate']:.3f}" for n in NAMES)
                     + f" | {cov} | {max(r['rmse_over_noise'].values()):.1f} | {_scale(r)} | {_optima(r)} | {methods} "
-                    f"| {dropped} "
-                    f"| {r['wall_s']:.0f} |")
+                    f"| {dropped} | {r['wall_s']:.0f} |")
     summary = {n: {"median_error": float(np.median([r[n]["error"] for r in ok])) if ok else None,
                    "coverage": float(np.mean([r[n]["covered"] for r in ok])) if ok else None,
                    "goal": GOAL[n]} for n in NAMES}

@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from galileo_jax.errors import GalileoError
 from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
+from galileo_jax.scene import MAX_SCALE_TOLERANCE
 
 
 class ConfigError(GalileoError):
@@ -93,7 +94,7 @@ class FitConfig(_Strict):
 
     effects: list[str] = Field(default_factory=list)
     engine: Literal["auto", "mjx", "mujoco"] = "auto"
-    scale_tolerance: float = Field(0.03, ge=0.0, le=0.3)
+    scale_tolerance: float = Field(0.03, ge=0.0, le=MAX_SCALE_TOLERANCE)
     mh: MHConfig = MHConfig()
     seed_mh: SeedMHConfig = SeedMHConfig()
     grad: GradConfig = GradConfig()

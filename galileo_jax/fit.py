@@ -84,9 +84,11 @@ def _settings(args) -> "FitConfig":  # noqa: F821
     if args.cnn_model is not None:
         cfg.cnn.model = args.cnn_model
     if args.scale_tolerance is not None:
-        if not 0.0 <= args.scale_tolerance <= 0.3:
-            raise GalileoError(f"--scale-tolerance must be between 0 and 0.3 (a relative error), got "
-                               f"{args.scale_tolerance:g}")
+        from galileo_jax.scene import MAX_SCALE_TOLERANCE
+
+        if not 0.0 <= args.scale_tolerance <= MAX_SCALE_TOLERANCE:
+            raise GalileoError(f"--scale-tolerance must be between 0 and {MAX_SCALE_TOLERANCE:g} (a relative error), "
+                               f"got {args.scale_tolerance:g}")
         cfg.scale_tolerance = args.scale_tolerance
     if args.effects is not None:
         from galileo_jax.effects import resolve_effects

@@ -474,8 +474,8 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     timings["observe_s"] = time.perf_counter() - t
     t = time.perf_counter()
     try:
-        problems = [Problem(scene_for_fit(s, cfg, method), o, **problem_options(s, cfg))
-                    for (_, s), o in zip(inputs, observations)]
+        scenes = [scene_for_fit(s, cfg, method) for _, s in inputs]
+        problems = [Problem(s, o, **problem_options(s, cfg)) for s, o in zip(scenes, observations)]
         joint = JointProblem(problems, per_video)
     except ValueError as err:
         raise GalileoError(str(err)) from None

@@ -50,6 +50,10 @@ Pixel = tuple[float, float]
 MAX_RAMP_THICKNESS = 0.1
 
 
+#: Largest relative scale tolerance a scene file or ``fit --scale-tolerance`` may give (30%).
+MAX_SCALE_TOLERANCE = 0.3
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -184,7 +188,7 @@ class Camera(_Strict):
     roll_deg: float = Field(default=0.0, ge=-45, le=45)
     start_pixels: list[Pixel] | None = None
     foot_pixel: Pixel | None = None
-    scale_tolerance: float | None = Field(default=None, ge=0.0, le=0.3)
+    scale_tolerance: float | None = Field(default=None, ge=0.0, le=MAX_SCALE_TOLERANCE)
 
     @model_validator(mode="after")
     def _check_scale(self) -> "Camera":
