@@ -24,7 +24,8 @@ the rank is the share of draws below the truth. ``grad-plain`` is grad's own fit
 Gauss-Newton intervals it had before widening them to the sandwich estimate's (draws shrunk back
 about the estimate by each parameter's widening factor): the widening's effect on the same fits.
 
-    python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn,grad+cnn] [--work DIR] [--rerun [--rerun-only grad/world,...]]
+    python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn,grad+cnn] [--work DIR]
+        [--rerun [--rerun-only grad/world,...]]
 
 Writes ``benchmarks/results/coverage.{md,json}``; videos and per-video records go under
 ``--work`` (default ``benchmarks/results/coverage/``; videos not kept in git). Resumable: a video
