@@ -18,6 +18,10 @@ Then, along k1 through the truth (121 points 5e-5 apart, the other parameters at
 log-likelihood's deviation from a fitted quadratic (SD, nats) and the velocity samples that carry
 it (the same deviation of each sample's log-likelihood term, summed over traces).
 
+Last, the physics step: the same deviation along k1 and along the release time (121 points 2e-4 s
+apart) with 8 (the scene's), 16 and 32 physics steps a frame, and mh on the video with 16
+(``video, 16 steps a frame``): a finer step moves the impact in finer increments.
+
 Per target: acceptance, largest R-hat and smallest bulk ESS over k1, k2, phi (ArviZ), lag-1
 autocorrelation of k1 within chains, wall time. Writes ``benchmarks/results/mh_roughness.{md,json}``.
 
@@ -48,6 +52,9 @@ NAMES = ("k1", "k2", "phi")
 ROUGH_SDS = (1.0, 2.0)
 ROUGH_LENGTH = 0.1
 N_FEATURES = 64
+#: Physics steps a video frame compared (the scene's first), and the one mh is also run with.
+SUBSTEPS = (8, 16, 32)
+MH_SUBSTEPS = 16
 
 
 class GaussianTarget:
@@ -97,13 +104,13 @@ def sampler_record(name: str, res, seconds: float) -> dict:
     return rec
 
 
-def roughness_along_k1(problem, theta0: np.ndarray, step: float = 5e-5, half: int = 60) -> dict:
-    """The log-likelihood's deviation from a quadratic along k1 through ``theta0`` (nats SD) and
-    the velocity samples that carry most of it."""
+def roughness_along(problem, theta0: np.ndarray, name: str = "k1", step: float = 5e-5, half: int = 60) -> dict:
+    """The log-likelihood's deviation from a quadratic along parameter ``name`` through ``theta0``
+    (nats SD) and the velocity samples that carry most of it."""
     import jax.numpy as jnp
 
     lik = problem.likelihood
-    i = list(problem.space.names).index("k1")
+    i = list(problem.space.names).index(name)
     x = np.arange(-half, half + 1) * step
     th = np.repeat(theta0[None], len(x), axis=0)
     th[:, i] += x
@@ -118,15 +125,20 @@ def roughness_along_k1(problem, theta0: np.ndarray, step: float = 5e-5, half: in
 
     per_sample = np.array([[off_quadratic(terms[:, t, k]) for k in range(n)] for t in range(terms.shape[1])]).sum(0)
     top = np.argsort(per_sample)[::-1][:6]
-    return {"step": step, "points": len(x), "sd_nats": off_quadratic(total),
+    return {"name": name, "step": step, "points": len(x), "sd_nats": off_quadratic(total),
             "samples": [{"sample": int(k), "time_s": float(problem.observation.frame_times[k]),
                          "sd_nats": float(per_sample[k])} for k in top]}
+
+
+def with_substeps(scene, substeps: int):
+    """``scene`` with ``substeps`` physics steps a video frame."""
+    return scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"substeps": substeps})})
 
 
 def _description() -> list[str]:
     """The module docstring's description as Markdown lines (its list items kept as items)."""
     lines = []
-    for p in __doc__.split("\n\n")[1:4]:
+    for p in __doc__.split("\n\n")[1:5]:
         items = p.strip().split("\n* ")
         lines += [" ".join(items[0].split())] + ["* " + " ".join(i.split()) for i in items[1:]] + [""]
     return lines[:-1]
@@ -170,11 +182,22 @@ def main(argv=None) -> int:
         res_g = run_mh(GaussianTarget(problem.space, mu, cov, rough), jax.random.PRNGKey(2), **kw)
         records.append(sampler_record(name, res_g, time.perf_counter() - t))
     theta0 = np.array([truth.get(n, 0.0) for n in problem.space.names], float)
-    rough = roughness_along_k1(problem, theta0)
+    rough = roughness_along(problem, theta0)
+    steps = []
+    for sub in SUBSTEPS:
+        p_sub = problem if sub == scene.simulation.substeps else Problem(
+            with_substeps(scene, sub), obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
+            engine=resolve_engine(cfg))
+        steps.append({"substeps": sub, "k1": roughness_along(p_sub, theta0)["sd_nats"],
+                      "dt_release": roughness_along(p_sub, theta0, "dt_release", 2e-4)["sd_nats"]})
+        if sub == MH_SUBSTEPS:
+            t = time.perf_counter()
+            res_s = run_mh(p_sub, jax.random.PRNGKey(2), **kw)
+            records.append(sampler_record(f"video, {sub} steps a frame", res_s, time.perf_counter() - t))
     corr = np.corrcoef(z, rowvar=False)
     doc = {"machine": machine_line(), "video": str(args.video.relative_to(ROOT)) if args.video.is_relative_to(ROOT)
            else str(args.video), "names": list(problem.space.names), "posterior_corr_z": np.round(corr, 3).tolist(),
-           "records": records, "roughness_k1": rough}
+           "records": records, "roughness_k1": rough, "physics_step": steps}
     write_atomic(RESULTS / "mh_roughness.json", json.dumps(doc, indent=1))
     lines = ["# Why mh mixes slowly: the sampler against Gaussians of the same covariance", "",
              f"machine: {doc['machine']}", "",
@@ -191,7 +214,10 @@ def main(argv=None) -> int:
               f"deviates from a quadratic by {rough['sd_nats']:.2f} nats (SD). The velocity samples that carry it "
               "(the same SD of each sample's term, summed over traces): "
               + ", ".join(f"{s['sample']} (t = {s['time_s']:.2f} s) {s['sd_nats']:.2f}"
-                          for s in rough["samples"]) + "."]
+                          for s in rough["samples"]) + ".", "",
+              "| physics steps a frame | off-quadratic SD along k1 (nats) | along the release time (nats) |",
+              "|---|---|---|"]
+    lines += [f"| {r['substeps']} | {r['k1']:.2f} | {r['dt_release']:.2f} |" for r in steps]
     write_atomic(RESULTS / "mh_roughness.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
