@@ -227,6 +227,7 @@ def tables(summary: dict, records: list[dict]) -> list[str]:
                     cov = " / ".join(f"{np.mean([r[n]['covered90_reported'] for r in rows]):.2f}" for n in NAMES)
                     wid = sum(r[n].get("interval_method") == "profile likelihood" for r in rows for n in NAMES)
                     lines.append(f"- {method}, {family} ({len(rows)} videos): {cov}; widened {wid} of {3 * len(rows)}")
+    lines += adequacy_lines(records)
     failed = [r for r in records if "error" in r]
     if failed:  # one line per method and message (a CNN missing for a scene stops every video of it)
         groups: dict = {}
@@ -236,6 +237,23 @@ def tables(summary: dict, records: list[dict]) -> list[str]:
             f"- {m} on {len(v)} video{'s' if len(v) > 1 else ''} ({', '.join(v[:4])}{', ...' if len(v) > 4 else ''}): {e}"
             for (m, e), v in groups.items()]
     return lines
+
+
+def adequacy_lines(records: list[dict]) -> list[str]:
+    """Markdown: per method, the 90% coverage (k1 / k2 / phi) and median RMSE over the noise floor
+    of the fits the report called adequate and of those it called inadequate (``result.json``'s
+    ``adequacy``): how far a user can trust the intervals of a fit that says it is adequate."""
+    out = ["", "90% coverage by the fit's own adequacy verdict (the residual tests of `result.json`'s "
+           "`adequacy`; k1 / k2 / phi, the draws' intervals; median RMSE over the noise floor):", ""]
+    for method in sorted({r["method"] for r in records if "error" not in r and not r["method"].endswith("-plain")}):
+        for verdict in (True, False):
+            rows = [r for r in records if r["method"] == method and "error" not in r and r.get("adequate") == verdict]
+            if rows:
+                cov = " / ".join(f"{np.mean([r[n]['covered90'] for r in rows]):.2f}" for n in NAMES)
+                ratio = np.median([r["rmse_over_noise"] for r in rows])
+                out.append(f"- {method}, {'adequate' if verdict else 'inadequate'} ({len(rows)} videos): {cov}; "
+                           f"RMSE / noise {ratio:.1f}")
+    return out
 
 
 def main(argv=None) -> int:
