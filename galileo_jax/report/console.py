@@ -89,7 +89,9 @@ def _adequacy_lines(adequacy: dict, video, scene) -> list[str]:
         scale = (" a calibration error (this fit took the camera's scale as exact, and a scale measured by hand is "
                  "rarely better than a few percent: --scale-tolerance 0.03 or camera.scale_tolerance fits it) or"
                  if not scene.camera.scale_tolerance else "")
-        lines.append("  The model misses something here (the estimates and intervals above assume it does not):"
+        lines.append("  The model misses something here (the estimates and intervals above assume it does not;"
+                     " on rendered test videos the 90% intervals of fits judged inadequate held the truth in only"
+                     " about half the cases, benchmarks/results/coverage.md):"
                      f"{scale} a physical effect; python -m galileo_jax.diagnose {video} looks for both.")
     return lines
 
