@@ -106,7 +106,10 @@ def fit_one(video: Path, method: str) -> dict:
     from galileo_jax.scene import load_scene
 
     truth = json.loads(video.with_suffix(".truth.json").read_text())
-    rec = {"video": video.name, "method": method, "truth": {n: truth[n] for n in NAMES}}
+    import datetime
+
+    rec = {"video": video.name, "method": method, "truth": {n: truth[n] for n in NAMES},
+           "fitted_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     t = time.perf_counter()
     try:
         name, _, init = method.partition("+")
@@ -239,6 +242,20 @@ def tables(summary: dict, records: list[dict]) -> list[str]:
     return lines
 
 
+def record_dates(records: list[dict]) -> list[str]:
+    """Markdown: when each method's records of each family were fitted (their ``fitted_utc``
+    dates): a run with ``--rerun-only`` refits some and keeps the others' earlier records."""
+    out = ["Records fitted on (UTC dates; records from before the benchmark stamped them are 'undated'; "
+           "rows fitted by different versions of the code are not comparable):", ""]
+    for method in sorted({r["method"] for r in records if not r["method"].endswith("-plain")}):
+        for family in FAMILIES:
+            mine = [r for r in records if r["method"] == method and r["video"].startswith(family + "_")]
+            if mine:
+                days = sorted({r.get("fitted_utc", "undated")[:10] for r in mine})
+                out.append(f"- {method}, {family}: {', '.join(days)} ({len(mine)} records)")
+    return out
+
+
 def adequacy_lines(records: list[dict]) -> list[str]:
     """Markdown: per method, the 90% coverage (k1 / k2 / phi) and median RMSE over the noise floor
     of the fits the report called adequate and of those it called inadequate (``result.json``'s
@@ -306,7 +323,8 @@ def main(argv=None) -> int:
              f"command: `{command}`", "", *paragraphs,
              "Goal: 90% intervals cover 85-95% and 50% intervals 40-60% of the truths, per method and "
              "parameter (bold: outside). A calibrated method's rank histogram is flat; a U shape means "
-             "intervals too narrow, a hump too wide, a slope a bias.", "", *tables(summary, records), ""]
+             "intervals too narrow, a hump too wide, a slope a bias.", "", *tables(summary, records), "",
+             *record_dates(records), ""]
     with atomic_path(RESULTS / "coverage.md") as tmp:
         tmp.write_text("\n".join(lines))
     print("\n".join(lines[:40]))
