@@ -18,9 +18,9 @@ object 2 (``synth.draw_informative_params``: the videos a user films). Each vide
 ``python -m galileo_jax.fit VIDEO --method M`` does (:func:`galileo_jax.pipeline.run_fit`, default
 settings: tracked from the pixels, objects found automatically, the scene file as written by
 the renderer, which states no scale tolerance, so grad and mh fit the camera's scale error as a
-nuisance within +-3% and cnn takes the scale as exact). The intervals are the central 50% and 90% intervals of the
-fit's posterior draws (``posterior.nc``: mh's chains, grad's and cnn's Gaussian approximation);
-the rank is the share of draws below the truth. ``grad-plain`` is grad's own fits with the
+nuisance within +-3% and cnn takes the scale as exact). The intervals are the central 50% and
+90% intervals of the fit's posterior draws (``posterior.nc``: mh's chains, grad's and cnn's
+Gaussian approximation); the rank is the share of draws below the truth. ``grad-plain`` is grad's own fits with the
 Gauss-Newton intervals it had before widening them to the sandwich estimate's (draws shrunk back
 about the estimate by each parameter's widening factor): the widening's effect on the same fits.
 
@@ -36,6 +36,7 @@ named method/family pairs, the others' records are read as they are).
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import os
 import sys
@@ -106,8 +107,6 @@ def fit_one(video: Path, method: str) -> dict:
     from galileo_jax.scene import load_scene
 
     truth = json.loads(video.with_suffix(".truth.json").read_text())
-    import datetime
-
     rec = {"video": video.name, "method": method, "truth": {n: truth[n] for n in NAMES},
            "fitted_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     t = time.perf_counter()
@@ -304,7 +303,7 @@ def main(argv=None) -> int:
             if path.exists() and not refit:
                 records.append(json.loads(path.read_text()))
                 continue
-            render(j, args.work, args.seed)  # once: a rendered video is kept
+            render(j, args.work, args.seed)  # renders only where the video is not there yet
             rec = fit_one(video, method)
             with atomic_path(path) as tmp:
                 tmp.write_text(json.dumps(rec))
