@@ -30,7 +30,8 @@ about the estimate by each parameter's widening factor): the widening's effect o
 Writes ``benchmarks/results/coverage.{md,json}``; videos and per-video records go under
 ``--work`` (default ``benchmarks/results/coverage/``; videos not kept in git). Resumable: a video
 with a record is not fitted again (``--rerun`` fits again; ``--rerun-only`` limits that to the
-named method/family pairs, the others' records are read as they are).
+named method/family pairs, the others' records are read as they are; ``--keep-since`` keeps the
+records fitted since a time, to resume an interrupted rerun).
 """
 
 from __future__ import annotations
@@ -282,6 +283,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rerun", action="store_true", help="fit again videos that have a record")
     ap.add_argument("--rerun-only", default="", metavar="M/F,...",
                     help="with --rerun, fit again only these method/family pairs (e.g. grad/world,mh/world)")
+    ap.add_argument("--keep-since", default="", metavar="DATE",
+                    help="with --rerun, keep records fitted on or after this UTC date or time (ISO, e.g. "
+                         "2026-11-26T23:00): resumes an interrupted rerun")
     args = ap.parse_args(argv)
     only = {tuple(x.strip().split("/", 1)) for x in args.rerun_only.split(",") if x.strip()}
     from tqdm import tqdm
@@ -300,6 +304,8 @@ def main(argv=None) -> int:
         for method in methods:
             path = args.work / f"{video.stem}_{method}.json"
             refit = args.rerun and (not only or (method, family) in only)
+            if refit and args.keep_since and path.exists():  # ISO strings of one form sort as times
+                refit = json.loads(path.read_text()).get("fitted_utc", "") < args.keep_since
             if path.exists() and not refit:
                 records.append(json.loads(path.read_text()))
                 continue
