@@ -91,7 +91,7 @@ def _adequacy_lines(adequacy: dict, video, scene) -> list[str]:
                  if not scene.camera.scale_tolerance else "")
         lines.append("  The model misses something here (the estimates and intervals above assume it does not;"
                      " on rendered test videos the 90% intervals of fits judged inadequate held the truth in only"
-                     " about half the cases, benchmarks/results/coverage.md):"
+                     " 52-80% of the cases, benchmarks/results/coverage.md):"
                      f"{scale} a physical effect; python -m galileo_jax.diagnose {video} looks for both.")
     return lines
 
