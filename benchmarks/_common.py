@@ -66,3 +66,18 @@ def write_atomic(path: Path, text: str) -> None:
 
     with atomic_path(Path(path)) as tmp:
         tmp.write_text(text)
+
+
+def with_substeps(scene, substeps: int):
+    """``scene`` (a :class:`galileo_jax.scene.Scene`) with ``substeps`` physics steps a video frame."""
+    return scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"substeps": substeps})})
+
+
+def docstring_markdown(doc: str, first: int, stop: int) -> list[str]:
+    """Paragraphs ``first`` to ``stop`` - 1 of a module docstring as Markdown lines, each followed by
+    an empty line; a paragraph's ``* `` list items stay items, one a line."""
+    lines = []
+    for p in doc.split("\n\n")[first:stop]:
+        items = p.strip().split("\n* ")
+        lines += [" ".join(items[0].split())] + ["* " + " ".join(i.split()) for i in items[1:]] + [""]
+    return lines

@@ -292,7 +292,7 @@ def main(argv=None) -> int:
 
     from galileo_jax.jaxcache import enable_compilation_cache
     from galileo_jax.report.results import atomic_path
-    from _common import machine_line
+    from _common import docstring_markdown, machine_line
 
     enable_compilation_cache()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -320,10 +320,7 @@ def main(argv=None) -> int:
     doc = {"machine": machine_line(), "command": command, "summary": summary, "records": records}
     with atomic_path(RESULTS / "coverage.json") as tmp:
         tmp.write_text(json.dumps(doc, indent=1))
-    paragraphs = []
-    for p in __doc__.split("\n\n")[1:5]:  # the description; a list keeps its items
-        items = p.strip().split("\n* ")
-        paragraphs += [" ".join(items[0].split())] + ["* " + " ".join(i.split()) for i in items[1:]] + [""]
+    paragraphs = docstring_markdown(__doc__, 1, 5)  # the description; a list keeps its items
     lines = ["# Coverage of the fit's intervals on rendered videos", "", f"machine: {doc['machine']}", "",
              f"command: `{command}`", "", *paragraphs,
              "Goal: 90% intervals cover 85-95% and 50% intervals 40-60% of the truths, per method and "

@@ -45,7 +45,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import machine_line, write_atomic  # noqa: E402
+from _common import docstring_markdown, machine_line, with_substeps, write_atomic  # noqa: E402
 
 NAMES = ("k1", "k2", "phi")
 #: Synthetic roughness: SDs (nats) and correlation length (posterior SDs, whitened coordinates).
@@ -130,20 +130,6 @@ def roughness_along(problem, theta0: np.ndarray, name: str = "k1", step: float =
                          "sd_nats": float(per_sample[k])} for k in top]}
 
 
-def with_substeps(scene, substeps: int):
-    """``scene`` with ``substeps`` physics steps a video frame."""
-    return scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"substeps": substeps})})
-
-
-def _description() -> list[str]:
-    """The module docstring's description as Markdown lines (its list items kept as items)."""
-    lines = []
-    for p in __doc__.split("\n\n")[1:5]:
-        items = p.strip().split("\n* ")
-        lines += [" ".join(items[0].split())] + ["* " + " ".join(i.split()) for i in items[1:]] + [""]
-    return lines[:-1]
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--video", type=Path, default=RESULTS / "coverage" / "ramp_20_1.mp4",
@@ -202,7 +188,7 @@ def main(argv=None) -> int:
     lines = ["# Why mh mixes slowly: the sampler against Gaussians of the same covariance", "",
              f"machine: {doc['machine']}", "",
              f"command: `python benchmarks/mh_roughness.py` (video `{doc['video']}`)", "",
-             *_description(), "",
+             *docstring_markdown(__doc__, 1, 5),
              "| target | acceptance | max R-hat | min bulk ESS | lag-1 autocorrelation of k1 | time (s) |",
              "|---|---|---|---|---|---|"]
     for r in records:

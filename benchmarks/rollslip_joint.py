@@ -45,6 +45,8 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
+from _common import with_substeps  # noqa: E402
+
 from galileo_jax.effects import Effect, EffectParam  # noqa: E402
 from galileo_jax.inference.grad import fit_grad  # noqa: E402
 from galileo_jax.inference.joint import JointProblem  # noqa: E402
@@ -104,10 +106,6 @@ def observe_all() -> tuple[dict, dict, float]:
         clip = read_video(VIDEO_DIR / f"rollslip_{a}.mp4", fps_override=scene.video.fps)
         scenes[a], obs[a] = scene, observe(clip, scene, progress=False)
     return scenes, obs, time.perf_counter() - t0
-
-
-def with_substeps(scene, n: int):
-    return scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"substeps": n})})
 
 
 def problems_for(scenes, obs, effects, fine_steep: bool = False) -> list[Problem]:
