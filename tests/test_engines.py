@@ -56,6 +56,9 @@ def test_c_engine_inside_jit_and_vmap_matches_host_batches():
     z = jax.random.normal(jax.random.PRNGKey(0), (20, c.dim)) * 0.5
     ll_c, ll_m = np.asarray(c.log_likelihood(z)), np.asarray(m.log_likelihood(z))
     assert np.all(np.isfinite(ll_c))
+    # MJX skips the steps after the fit window: the same values (one compiled program for both)
+    assert int(m.data.live_steps) < m.n_steps
+    assert np.array_equal(ll_m, np.asarray(m.jitted("log_likelihood", None)(z, m.whole_data)))
     assert np.median(np.abs(ll_c - ll_m) / np.abs(ll_m)) < 0.02
     res = fit_grad(c, jax.random.PRNGKey(1), n_starts=2, n_screen=32, max_steps=15)
     est = dict(zip(c.names, np.asarray(res.theta)))
@@ -94,6 +97,42 @@ def test_c_engine_simulates_a_repeated_rollout_once(monkeypatch):
     monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)  # off: every row simulated
     simulate_c.cached_rollout_poses(sim, mass[rows], friction[rows], n)
     assert ran == [3, 1, 5]
+
+
+def test_c_engine_simulates_only_the_fit_window_and_the_whole_video_for_reports(monkeypatch):
+    """The fit's rollouts stop at the last frame the likelihood uses (``ProblemData.live_steps``)
+    and give the same log-likelihoods as whole rollouts; ``simulate`` still covers the whole video."""
+    from galileo_jax.physics import simulate_c
+
+    truth = PhysParams(jnp.array([0.6, 0.3]), jnp.array([0.05, 0.1]))  # still sliding at 2 s
+    mask = np.arange(59) < 30  # 2 s at 30 fps; the fit window ends at 1 s
+    obs = simulated_observation(SCENE, truth, duration=2.0 - 1 / 30, position_sd=1e-3, seed=2, release_time=0.2,
+                                mask=mask)
+    c = Problem(SCENE, obs, engine="mujoco")
+    live = int(c.data.live_steps)
+    need = steps_needed(c.sim, 1.0 - 0.2 + SCENE.simulation.release_window)  # to 1 s from the earliest release
+    assert need <= live <= need + 3 and live < c.n_steps / 2
+    ran = []
+    real = simulate_c.rollout_poses_host
+
+    def counting(sim_, m, f, n_steps, *args):
+        ran.append(n_steps)
+        return real(sim_, m, f, n_steps, *args)
+
+    monkeypatch.setattr(simulate_c, "rollout_poses_host", counting)
+    simulate_c.clear_rollout_cache()
+    theta = jnp.array([[0.05, 0.1, 1 / 3, 0.0], [0.15, 0.4, 0.1, -0.03]])
+    z = c.space.to_unconstrained(theta)
+    ll = np.asarray(c.log_likelihood(z))
+    assert ran == [live]
+    f = c.jitted("log_likelihood", None)  # the same program on whole rollouts
+    assert np.array_equal(ll, np.asarray(f(z, c.whole_data))) and ran[-1] == c.n_steps
+    simulate_c.clear_rollout_cache()
+    whole = np.asarray(c.simulate(theta[0]))
+    assert ran[-1] == c.n_steps and whole.shape == (4, 59)
+    fit_window = np.asarray(jax.jit(c.engine.profile_theta)(theta[0], c.data))[:, :59]
+    assert np.array_equal(whole[:, :30], fit_window[:, :30])  # the fit window: the same profile
+    assert np.abs(whole[0, 45:]).min() > 0.05 and np.all(fit_window[:, 45:] == 0.0)  # after it: held
 
 
 def test_engine_choice():

@@ -173,7 +173,7 @@ def test_scenes_of_one_structure_share_compiled_programs():
         pa.simulate(theta)
         prof = np.asarray(pb.simulate(theta))
         assert pb.jitted("simulate", None)._cache_size() == 1  # one program for both scenes
-        eng, own = pb.engine, pb.data._replace(physics=None)  # b's numbers as constants of its own program
+        eng, own = pb.engine, pb.whole_data._replace(physics=None)  # b's numbers as constants of its own program
         expected = np.asarray(jax.jit(lambda t: eng.profile_theta(t, own))(theta))[..., :pb.n_samples]
         np.testing.assert_allclose(prof, expected, rtol=0, atol=1e-10)
         if not effects:

@@ -277,7 +277,7 @@ def _pose(sim: Simulator, qpos: jax.Array) -> jax.Array:
     return object_poses(sim.index, qpos, jnp)
 
 
-def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
+def rollout(sim: Simulator, params: PhysParams, n_steps: int, live_steps: jax.Array | None = None) -> Trajectory:
     """Simulate ``n_steps`` physics steps from rest at the scene's start positions.
 
     Pure and jittable for fixed ``n_steps``; ``vmap`` over ``params`` for a batch. The
@@ -291,6 +291,11 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
         sim: the simulator.
         params: unbatched :class:`PhysParams`.
         n_steps: number of physics steps (static).
+        live_steps: optional () int, the steps whose poses the caller uses (traced, e.g. a
+            fit window that ends before the rollout's static length). The C engine simulates
+            only that many and holds the last pose after them (the same poses up to there,
+            fewer steps); MJX's scan keeps its static length and skips the steps after them
+            (:func:`_scan_steps`). None: all ``n_steps``.
 
     Returns:
         :class:`Trajectory` with ``pose`` of shape (n_steps + 1, n_objects, 3).
@@ -302,23 +307,40 @@ def rollout(sim: Simulator, params: PhysParams, n_steps: int) -> Trajectory:
             vals = split_values(sim.effects, values)
             fields = model_updates(sim.effects, vals, apply_params(sim, params), sim.ctx)
             velocity = initial_velocity(sim.effects, vals, sim.ctx)
-        poses = simulate_c.rollout_poses(sim, params.mass, params.friction, n_steps, fields, velocity)
+        poses = simulate_c.rollout_poses(sim, params.mass, params.friction, n_steps, fields, velocity, live_steps)
         return Trajectory(poses, sim.dt)
     model = apply_params(sim, params)
     data0 = sim.data0
     if sim.effects:
-        return _rollout_effects(sim, model, params, n_steps)
+        return _rollout_effects(sim, model, params, n_steps, live_steps)
 
     def step(d, _):
         d = mjx.step(model, d)
         return d, _pose(sim, d.qpos)
 
-    _, poses = jax.lax.scan(step, data0, None, length=n_steps)
+    _, poses = _scan_steps(sim, step, data0, n_steps, live_steps)
     pose0 = _pose(sim, sim.data0.qpos)[None]
     return Trajectory(jnp.concatenate([pose0, poses]), sim.dt)
 
 
-def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_steps: int) -> Trajectory:
+def _scan_steps(sim: Simulator, step, data0, n_steps: int, live_steps):
+    """``lax.scan`` of ``step`` over ``n_steps`` steps; with ``live_steps`` the steps from there on
+    keep the state (a ``lax.cond`` per step: skipped where ``live_steps`` is not batched, e.g.
+    one video's rollouts under ``vmap``; computed and discarded where it is, a batch of videos)."""
+    if live_steps is None:
+        return jax.lax.scan(step, data0, None, length=n_steps)
+
+    def held(d, _):
+        return d, _pose(sim, d.qpos)
+
+    def live_step(d, k):
+        return jax.lax.cond(k < live_steps, step, held, d, None)
+
+    return jax.lax.scan(live_step, data0, jnp.arange(n_steps))
+
+
+def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_steps: int,
+                     live_steps=None) -> Trajectory:
     """:func:`rollout` with the simulator's effects (kept apart so the base model's program is unchanged)."""
     effects, ctx, index = sim.effects, sim.ctx, sim.index
     values = params.effects if params.effects is not None else jnp.asarray(neutral_values(effects), jnp.float64)
@@ -355,7 +377,7 @@ def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_ste
         d = mjx.step(m, d)
         return d, _pose(sim, d.qpos)
 
-    _, poses = jax.lax.scan(step, data0, None, length=n_steps)
+    _, poses = _scan_steps(sim, step, data0, n_steps, live_steps)
     pose0 = _pose(sim, data0.qpos)[None]
     return Trajectory(jnp.concatenate([pose0, poses]), sim.dt)
 
@@ -398,7 +420,7 @@ def steps_needed(sim: Simulator, duration: float) -> int:
 
 
 def velocity_profile(sim: Simulator, params: PhysParams, frame_times: jax.Array, release_time: jax.Array,
-                     n_steps: int) -> jax.Array:
+                     n_steps: int, live_steps: jax.Array | None = None) -> jax.Array:
     """Simulated velocity profile at the video's frame times.
 
     Args:
@@ -407,10 +429,11 @@ def velocity_profile(sim: Simulator, params: PhysParams, frame_times: jax.Array,
         frame_times: (N,) video frame times in s.
         release_time: scalar, video time (s) at which the objects are released.
         n_steps: physics steps to simulate (static; use :func:`steps_needed`).
+        live_steps: optional () int: only these steps matter (:func:`rollout`).
 
     Returns:
         (2 * n_objects, N - 1) velocity profile in m/s.
     """
-    traj = rollout(sim, params, n_steps)
+    traj = rollout(sim, params, n_steps, live_steps)
     pos = sample_poses(traj, frame_times - release_time)[..., :2]
     return profile_from_positions(pos, frame_times)

@@ -191,7 +191,7 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
 
 
 def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, fields: dict | None = None,
-                  velocity: jax.Array | None = None) -> jax.Array:
+                  velocity: jax.Array | None = None, live_steps: jax.Array | None = None) -> jax.Array:
     """:func:`rollout_poses_host` as a ``jax.pure_callback`` for one rollout (vmap batches it).
 
     Args:
@@ -200,6 +200,11 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
         fields: optional {model field name: array of the field's shape}, the effects' model
             updates for this rollout, computed in JAX (:func:`galileo_jax.physics.simulate.rollout`).
         velocity: optional (n_objects, 3) release velocities in m/s.
+        live_steps: optional () int (traced): simulate only this many steps (at most
+            ``n_steps``; a batch simulates its largest) and hold the last pose after them.
+            The poses up to there are the same; the steps after them cost nothing. This keeps
+            the output's static shape, so videos whose fit windows end at different times
+            share one compiled program.
         Extra leading (vmapped) axes of any input reach the host as one batch.
 
     Returns:
@@ -212,16 +217,25 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
     inputs += [jnp.asarray(fields[k], jnp.float64) for k in names]
     if velocity is not None:
         inputs.append(jnp.asarray(velocity, jnp.float64))
+    live = live_steps is not None
+    if live:
+        inputs.append(jnp.asarray(live_steps, jnp.float64))
     # each input's own shape, without the leading axes vmap adds (known here, before vmap)
     own = [np.shape(mass)[-1:], np.shape(friction)[-1:]] + [getattr(sim.mj_model, k).shape for k in names]
     own += [(n, 3)] if velocity is not None else []
+    own += [()] if live else []
 
     def host(*arrays):
         arrays = [np.asarray(a, np.float64) for a in arrays]
         lead = np.broadcast_shapes(*(a.shape[:a.ndim - len(o)] for a, o in zip(arrays, own)))
         flat = [np.broadcast_to(a, lead + tuple(o)).reshape((-1,) + tuple(o)) for a, o in zip(arrays, own)]
-        poses = cached_rollout_poses(sim, flat[0], flat[1], n_steps, dict(zip(names, flat[2:2 + len(names)])),
+        steps = n_steps
+        if live and flat[-1].size:
+            steps = int(np.clip(np.max(flat[-1]), 1, n_steps))
+        poses = cached_rollout_poses(sim, flat[0], flat[1], steps, dict(zip(names, flat[2:2 + len(names)])),
                                      flat[2 + len(names)] if velocity is not None else None)
+        if steps < n_steps:  # hold the last pose (module docstring: only the live steps are used)
+            poses = np.concatenate([poses, np.repeat(poses[:, -1:], n_steps - steps, axis=1)], axis=1)
         return poses.reshape(lead + (n_steps + 1, n, 3))
 
     return jax.pure_callback(host, shape, *inputs, vmap_method="expand_dims")
