@@ -315,7 +315,7 @@ def live_steps(scene: Scene, sim: Simulator, observation, frame_times: np.ndarra
     last frame of the fit window (``observation.mask``), plus 2 for the interpolation; at most
     ``n_steps``. The frames after the fit window (objects at rest, a second collision left
     out) are simulated only for the reports (measured on README command 1's example: the fit
-    window ends 1.5 s after the release of a 3 s video; 448 of 833 steps, the rollouts' time
+    window ends 1.5 s after the release of a 3 s video; 420 of 833 steps, the rollouts' time
     9.1 -> 5.2-5.6 s)."""
     used = np.flatnonzero(np.asarray(observation.mask, bool))
     if used.size == 0:
