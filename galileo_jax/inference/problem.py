@@ -285,13 +285,19 @@ def _blocks(seconds: float, fps: float) -> float:
     return PAD_SAMPLES * math.ceil(frames / PAD_SAMPLES) / fps
 
 
+def release_margin(scene: Scene) -> float:
+    """Seconds by which the fitted release can precede the tracker's estimate (``dt_release``'s
+    lower bound, ``simulation.release_window``; 0 when the release is not fitted): a rollout
+    must run that much longer."""
+    return float(scene.simulation.release_window) if scene.simulation.fit_release else 0.0
+
+
 def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_batch: int,
                engine: str = "mjx") -> Engine:
     """The shared :class:`Engine` for these settings (built once per process and key); its
     rollouts cover ``seconds`` after the release plus the release-time window, on the
     simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.physics.simulate.make_simulator`)."""
-    early = scene.simulation.release_window if scene.simulation.fit_release else 0.0  # an earlier release runs longer
-    length = _blocks(seconds + early, fps)
+    length = _blocks(seconds + release_margin(scene), fps)  # an earlier release runs longer
     settings = (float(fps), tuple(effects), int(max_batch), engine)
     scene_id = ("scene", scene_key(scene), float(scene.camera.scale_tolerance or 0.0))
     own = scene_id + settings + (length,)
@@ -320,8 +326,7 @@ def live_steps(scene: Scene, sim: Simulator, observation, frame_times: np.ndarra
     used = np.flatnonzero(np.asarray(observation.mask, bool))
     if used.size == 0:
         return int(n_steps)
-    early = scene.simulation.release_window if scene.simulation.fit_release else 0.0
-    seconds = float(frame_times[used[-1] + 1]) - float(observation.release_time) + early
+    seconds = float(frame_times[used[-1] + 1]) - float(observation.release_time) + release_margin(scene)
     return int(min(max(steps_needed(sim, max(seconds, 0.0)) + 2, 2), n_steps))
 
 
