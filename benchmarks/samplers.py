@@ -26,8 +26,8 @@ Gauss-Newton interval, cnn); the median over videos of mh's max R-hat (and the w
 ESS per second (smallest bulk ESS over the sampled identifiable parameters, ArviZ via
 :func:`~galileo_jax.inference.summarize_mh`, divided by the sampler's wall time); rollouts
 (counted for the samplers, estimated for grad from its settings and LM steps, see
-:func:`galileo_jax.inference.grad.count_rollouts`); mean wall time of the method (compilation excluded: every method first
-runs on one warm-up video per angle, with mh and the seed's sampler shortened to a chunk or
+:func:`galileo_jax.inference.grad.count_rollouts`); mean wall time of the method (compilation
+excluded: every method first runs on one warm-up video per angle, with mh and the seed's sampler shortened to a chunk or
 two, which compiles the same programs).
 
 Profile errors (dissertation 4.3, "Comparison with a naive guesser"; NOTES.md): the seed's
@@ -263,7 +263,8 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
         res = fit_grad(problem, keys["grad"], jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, **kw)
         elapsed = time.perf_counter() - t0
         polish = {k: kw[k] for k in ("polish_rounds", "polish_points") if k in kw}
-        return {**evaluate(res.theta), "time_s": elapsed, "simulations": count_rollouts(res, n_screen=kw["n_screen"], **polish),
+        return {**evaluate(res.theta), "time_s": elapsed,
+                "simulations": count_rollouts(res, n_screen=kw["n_screen"], **polish),
                 "lm_steps": int(np.sum(res.starts_iterations)), "loglik": float(res.loglik),
                 "inside90": evaluate.inside({n: res.interval90[space.names.index(n)] for n in NAMES})}
 
@@ -294,6 +295,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
 
 # --------------------------------------------------------------------------- tables
 def _median(xs):
+    xs = [x for x in xs if x is not None]  # (R-hat is None for runs too short to split)
     return float(np.median(xs)) if len(xs) else None
 
 
@@ -323,7 +325,7 @@ def aggregate(records: list[dict]) -> dict:
             row["cover90"] = float(np.mean([[x["inside90"][n] for n in NAMES] for x in rs]))
         if all("max_rhat" in x for x in rs):
             row["max_rhat_median"] = _median([x["max_rhat"] for x in rs])
-            row["max_rhat_worst"] = float(np.max([x["max_rhat"] for x in rs]))
+            row["max_rhat_worst"] = max((x["max_rhat"] for x in rs if x["max_rhat"] is not None), default=None)
             row["ess_per_s_median"] = _median([x["ess_per_s"] for x in rs])
         if len(ok) < len(got):
             row["note"] = f"{len(got) - len(ok)} video(s): {got[0]['runs'][m].get('status', NO_MODEL)}"
@@ -344,7 +346,8 @@ def table_lines(rows: dict) -> list[str]:
             lines.append(f"| {m} | 0 | {row['status']} |" + " |" * 10)
             continue
         ratio = (f"{row['l1_vs_random']:.2f} / {row['l2_vs_random']:.2f}" if "l1_vs_random" in row else "-")
-        rhat = (f"{row['max_rhat_median']:.3f}, {row['max_rhat_worst']:.3f}" if "max_rhat_median" in row else "-")
+        rhat = (f"{row['max_rhat_median']:.3f}, {row['max_rhat_worst']:.3f}"
+                if row.get("max_rhat_median") is not None else "-")
         note = f" ({row['note']})" if "note" in row else ""
         lines.append(f"| {m}{note} | {row['videos']} | {row['mae_k1']:.4f} | {row['mae_k2']:.4f} "
                      f"| {row['mae_phi']:.4f} | {row['l1']:.3f} | {row['l2']:.4f} | {ratio} "
