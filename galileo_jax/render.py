@@ -30,6 +30,7 @@ import math
 
 from typing import NamedTuple  # noqa: E402
 
+import cv2  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -213,6 +214,55 @@ def front_offsets(scene: Scene, view: View) -> np.ndarray:
     """(n_objects, 3) body-frame offsets (m) from each object's centre to the centre of its face
     nearest the camera (its surface point nearest the camera for a cylinder or sphere)."""
     return np.array([[0.0, -view.sign * object_half_depth(scene, i), 0.0] for i in range(scene.n_objects)])
+
+
+def outline_points(scene: Scene, i: int, n_round: int = 48) -> np.ndarray:
+    """(P, 3) body-frame points (m) of object ``i`` whose projections' convex hull is its
+    silhouette in any pose and either projection (the object is convex): a box's 8 corners; a
+    round object's two rim circles (``n_round`` points each; a cylinder stands on its end, a
+    ``rolling`` box is drawn as a cylinder across the slope, radius half its height); a
+    sphere's ``8 n_round`` points spread evenly over it (Fibonacci lattice)."""
+    obj = scene.objects[i]
+    a = 2.0 * np.pi * np.arange(n_round) / n_round
+    ring = np.stack([np.cos(a), np.sin(a)], axis=-1)
+    if obj.shape == "box" and obj.rolling is None:
+        L, W, H = (0.5 * float(x) for x in obj.size)
+        return np.array([[sx * L, sy * W, sz * H] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    if obj.shape == "box":  # a rolling box: its cylinder, axis along body y
+        r, h = 0.5 * float(obj.size[2]), 0.5 * float(obj.size[1])
+        return np.concatenate([np.stack([r * ring[:, 0], np.full(n_round, y), r * ring[:, 1]], -1) for y in (-h, h)])
+    if obj.shape == "cylinder":  # axis along body z
+        r, h = float(obj.size[0]), 0.5 * float(obj.size[1])
+        return np.concatenate([np.concatenate([r * ring, np.full((n_round, 1), z)], -1) for z in (-h, h)])
+    n = 8 * n_round
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    rho = np.sqrt(1.0 - z * z)
+    return float(obj.size[0]) * np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1)
+
+
+def silhouettes(view: "View", points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids and areas of the convex hulls of projected point sets.
+
+    Args:
+        view: the camera.
+        points: (..., P, 3) world points (m) of one convex object per leading index
+            (:func:`outline_points` placed in the world).
+
+    Returns:
+        ``(centroids, areas)``: (..., 2) the area centroid (u, v) in px of each set's projected
+        convex hull (where the centroid of the object's image lies when all of it is seen) and
+        (...,) its area in px^2.
+    """
+    px = view.project(points)
+    flat = px.reshape(-1, *px.shape[-2:])
+    centroids, areas = np.empty((len(flat), 2)), np.empty(len(flat))
+    for j, pts in enumerate(flat):
+        m = cv2.moments(cv2.convexHull(pts.astype(np.float32)))
+        areas[j] = m["m00"]
+        centroids[j] = (m["m10"] / m["m00"], m["m01"] / m["m00"]) if m["m00"] > 1e-9 else pts.mean(axis=0)
+    return centroids.reshape(*px.shape[:-2], 2), areas.reshape(px.shape[:-2])
 
 
 def rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:

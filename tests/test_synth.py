@@ -580,7 +580,7 @@ def test_world_video_truth_and_scene(world_video, scene):
     assert truth["camera"]["projection"] == "perspective" and truth["camera"]["direction"] == "left"
     assert truth["colours"] == [list(c[:3]) for c in render.OBJECT_COLOURS]
     n = truth["n_frames"]
-    for key in ("pixels", "pixels_front", "pixels_exposure"):
+    for key in ("pixels", "pixels_front", "pixels_exposure", "pixels_silhouette"):
         assert np.shape(truth[key]) == (n, scene.n_objects, 2), key
     written = load_scene(path.with_suffix(".yaml"))
     assert written.camera.ramp_direction == "left"
@@ -597,8 +597,40 @@ def test_world_video_truth_and_scene(world_video, scene):
 def test_orthographic_front_pixels_are_the_centres(video):
     _, truth = video
     np.testing.assert_allclose(truth["pixels_front"], truth["pixels"], atol=1e-3)
+    np.testing.assert_allclose(truth["pixels_silhouette"], truth["pixels"], atol=1e-3)  # a box's outline is symmetric
     assert "pixels_exposure" not in truth and truth["blur"] == 0
     assert truth["camera"] == {"projection": "orthographic", "distance_m": None, "fovy_deg": None, "direction": "right"}
+
+
+@pytest.mark.parametrize("shape, size", [("box", [0.06, 0.05, 0.04]), ("cylinder", [0.03, 0.05]), ("sphere", [0.03])])
+def test_silhouette_of_a_convex_object_against_its_closed_form(shape, size):
+    """The silhouette (convex hull of the projected outline points) of an object: centred on the
+    optical axis, its centroid is the axis in both projections; its area is the orthographic
+    cross-section (box: length x height, cylinder: 2 r x height, sphere: pi r^2), and in
+    perspective at least that (a box's: its near face's, magnified by D / (D - depth)); off the axis, a
+    perspective camera sees the side facing the axis too, so the centroid sits nearer the axis
+    than the near face's centre."""
+    base = load_scene(SCENE)
+    sc = base.model_copy(update={"objects": [base.objects[0].model_copy(update={"shape": shape, "size": size})]})
+    local = render.outline_points(sc, 0)
+    D, f = 2.0, 500.0
+    ortho = render.View((0.0, 0.0), f, 640, 480)
+    persp = render.View((0.0, 0.0), f, 640, 480, "perspective", D)
+    axis = np.array([319.5, 239.5])
+    c, a = render.silhouettes(ortho, local)
+    np.testing.assert_allclose(c, axis, atol=0.02)  # (round outlines: polygons of 48 points)
+    extent = {"box": lambda: size[0] * size[2], "cylinder": lambda: 2 * size[0] * size[1],
+              "sphere": lambda: math.pi * size[0] ** 2}[shape]()
+    assert a == pytest.approx(extent * f * f, rel=0.01)
+    c, a = render.silhouettes(persp, local)
+    np.testing.assert_allclose(c, axis, atol=0.02)
+    half_depth = size[1] / 2 if shape == "box" else 0.0  # a round object's outline: its tangents, not its near side
+    assert a >= extent * f * f * (D / (D - half_depth)) ** 2 * 0.99
+    if shape == "box":  # 0.4 m right of the axis: the side facing the axis shows (about 5 px wide)
+        off = np.array([0.4, 0.0, 0.0])
+        c, _ = render.silhouettes(persp, local + off)
+        front = persp.project(off + np.array([0.0, -half_depth, 0.0]))
+        assert front[0] - 3.0 < c[0] < front[0] - 1.0
 
 
 def test_motion_steps_hold_the_frames(motion, scene):

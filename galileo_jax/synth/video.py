@@ -188,7 +188,10 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
     (radius for cylinders and spheres) along the body's y axis, projected; equal to ``pixels``
     in orthographic views) and, when ``blur`` >= 2, ``pixels_exposure`` (N x n_objects x
     [u, v]: the mean over each frame's sub-frames of the projected centre, what the centroid
-    of a blurred image sees), ``world`` ({``cone``, ``ramp_thickness`` (m)}: the physics the
+    of a blurred image sees), ``pixels_silhouette`` (N x n_objects x [u, v]: the centroid of
+    each object's whole silhouette, over the exposure when blurred: what a centroid tracker
+    measures when nothing hides the object; off the projected centre by the faces a
+    perspective camera sees beside the near one), ``world`` ({``cone``, ``ramp_thickness`` (m)}: the physics the
     fitted model does not have, :class:`~galileo_jax.physics.model.WorldPhysics`).
 
     ``effects``: the simulated effects (names or Effects, the scene's own included), in the
@@ -225,7 +228,23 @@ def truth_record(scene: Scene, params: PhysParams, motion: Motion, view: render.
     if blur >= 2:
         sub = motion.qpos_at(exposure_times(motion.n_frames, motion.fps, blur, shutter))
         rec["pixels_exposure"] = _pixels(view, sub, motion.qpos_adr, centres, mean_axis=1)
+    rec["pixels_silhouette"] = _silhouette_pixels(scene, view, sub if blur >= 2 else motion.qpos[:, None],
+                                                  motion.qpos_adr)
     return rec
+
+
+def _silhouette_pixels(scene: Scene, view: render.View, qpos: np.ndarray, qpos_adr) -> list:
+    """(N, n_objects, 2) centroids (px) of each object's whole silhouette (the convex hull of its
+    projected :func:`~galileo_jax.render.outline_points`), from (N, S, nq) poses at S sub-frames
+    per frame: the area-weighted mean over the sub-frames (a blurred image's centroid); rounded
+    to 1e-4 px, as nested lists."""
+    out = []
+    for i in range(scene.n_objects):
+        local = render.outline_points(scene, i)  # (P, 3)
+        world = np.stack([render.body_points(qpos, [qpos_adr[i]], p[None])[..., 0, :] for p in local], axis=-2)
+        c, a = render.silhouettes(view, world)  # (N, S, 2), (N, S)
+        out.append((c * a[..., None]).sum(axis=1) / np.maximum(a.sum(axis=1), 1e-9)[:, None])
+    return np.round(np.stack(out, axis=1), 4).tolist()
 
 
 def _pixels(view: render.View, qpos: np.ndarray, qpos_adr, local: np.ndarray, mean_axis: int | None = None) -> list:
