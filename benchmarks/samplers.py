@@ -260,7 +260,8 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
         done("mh (best draw)", {**evaluate(res.best_theta), **common, "best_loglik": diag["best_loglik"]})
 
     def grad_run(t0: float, **kw) -> dict:
-        res = fit_grad(problem, keys["grad"], jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, **kw)
+        res = fit_grad(problem, keys["grad"], jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps,
+                       search_generations=cfg.grad.search_generations, **kw)
         elapsed = time.perf_counter() - t0
         polish = {k: kw[k] for k in ("polish_rounds", "polish_points") if k in kw}
         return {**evaluate(res.theta), "time_s": elapsed,

@@ -46,14 +46,18 @@ class SeedMHConfig(_Strict):
 
 
 class GradConfig(_Strict):
-    """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind, and whether each
-    interval is checked against the profile likelihood (:mod:`galileo_jax.inference.profile`)."""
+    """Levenberg-Marquardt: batched starts, iteration cap, Jacobian kind, the CMA-ES search
+    after it, and whether each interval is checked against the profile likelihood
+    (:mod:`galileo_jax.inference.profile`)."""
 
     starts: int = Field(4, ge=1, le=256)
     screen: int = Field(256, ge=1, le=4096)
     max_steps: int = Field(100, ge=1)
     jacobian: Literal["fd", "ad"] = "fd"
     profile: bool = True
+    #: CMA-ES generations (32 rollouts each) from the best LM end, then LM from the search's best
+    #: (:func:`~galileo_jax.inference.grad.fit_grad`'s ``search_generations``); 0: no search.
+    search_generations: int = Field(40, ge=0, le=1000)
 
 
 class CNNConfig(_Strict):

@@ -103,10 +103,12 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
         from galileo_jax.inference.grad import fit_grad
 
         if start is None:
-            res = fit_grad(problem, k_run, **grad_options(cfg), profile=cfg.grad.profile)
+            res = fit_grad(problem, k_run, **grad_options(cfg), profile=cfg.grad.profile,
+                           search_generations=cfg.grad.search_generations)
         else:
             res = fit_grad(problem, k_run, **grad_start_from_cnn(start, problem.space, cfg),
-                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, profile=cfg.grad.profile)
+                           jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, profile=cfg.grad.profile,
+                           search_generations=cfg.grad.search_generations)
         params, diag, theta, draws = grad_estimate(res, problem.space, k_sum, cfg)
         return params, {**diag, **cnn_diag}, theta, draws, gauss_newton_posterior(res, problem.space, k_sum)
     if method == "mh":

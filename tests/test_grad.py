@@ -108,6 +108,34 @@ def test_rollout_counter_counts_what_the_engine_ran(problem_c, monkeypatch):
     assert sum(ran) == count_rollouts(res, n_screen=16) > 16
 
 
+def test_search_after_lm_only_lowers_the_cost_and_is_counted(problem_c, monkeypatch):
+    """``search_generations``: CMA-ES from the LM end, then LM from its best, kept only where it
+    ends lower; its rollouts are counted by ``count_rollouts`` (within the polish's one
+    uncertain Jacobian, see its docstring) and reported in the summary."""
+    from galileo_jax.inference.grad import SEARCH_POPSIZE
+    from galileo_jax.physics import simulate_c
+
+    kw = dict(n_starts=1, n_screen=8, max_steps=3)  # a short LM: room for the search
+    plain = fit_grad(problem_c, jax.random.key(3), **kw)
+    monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)
+    ran = []
+    real = simulate_c.rollout_poses_host
+
+    def counting(sim, mass, *args, **kw):
+        ran.append(int(np.shape(mass)[0]))
+        return real(sim, mass, *args, **kw)
+
+    monkeypatch.setattr(simulate_c, "rollout_poses_host", counting)
+    res = fit_grad(problem_c, jax.random.key(3), **kw, search_generations=4)
+    assert plain.search is None
+    assert res.search["generations"] == 4 and res.search["evaluations"] == 4 * SEARCH_POPSIZE + 1
+    assert res.cost <= plain.cost + 1e-9
+    assert res.search["kept"] == (res.cost < plain.cost - 1e-9)
+    d = len(res.z)
+    assert abs(sum(ran) - count_rollouts(res, n_screen=8)) <= 2 * d + 1
+    assert summarize_grad(res, problem_c.space)["diagnostics"]["search"] == res.search
+
+
 def test_grad_rejects_bad_arguments(problem):
     with pytest.raises(ValueError, match="init"):
         fit_grad(problem, jax.random.key(0), init=np.array([0.2, 0.3]))

@@ -383,7 +383,8 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     estimate's (:func:`~galileo_jax.inference.covariance.robust_covariance`; 1.0: not widened). Where
     the intervals were checked against the profile likelihood (:attr:`GradResult.profile`),
     ``profile_check`` holds the check and each checked parameter its ``interval_method``
-    ("profile likelihood" where the profile's ends were reported, else "gauss-newton").
+    ("profile likelihood" where the profile's ends were reported, else "gauss-newton"). Where
+    a CMA-ES search followed LM (:attr:`GradResult.search`), ``search`` holds its record.
     """
     params = point_parameters(space, result.theta, result.sd, result.interval90, result.cov_theta,
                               getattr(result, "fixed", ()))
@@ -396,6 +397,8 @@ def summarize_grad(result, space: ParamSpace) -> dict:
         held = set(getattr(result, "fixed", ()))
         diagnostics["interval_widening"] = {n: round(float(f), 3) for n, f in zip(space.names, inflation)
                                             if n not in held and np.isfinite(f)}
+    if getattr(result, "search", None) is not None:
+        diagnostics["search"] = result.search
     profile = getattr(result, "profile", None)
     if profile is not None:
         diagnostics["profile_check"] = profile
