@@ -90,9 +90,9 @@ def test_grad_recovers_truth(problem_c):
     assert set(summ["diagnostics"]["interval_widening"]) == set(problem_c.names)
 
 
-def test_rollout_counter_counts_what_the_engine_ran(problem_c, monkeypatch):
-    """``count_rollouts`` (the benchmarks' one counter) equals the rollouts the C engine's host
-    callback was asked for during ``fit_grad`` (its cache of recent rollouts off), polish included."""
+def _counted_rollouts(monkeypatch) -> list[int]:
+    """A list that receives the batch size of every rollout call of the C engine's host callback
+    from now on (its cache of recent rollouts off)."""
     from galileo_jax.physics import simulate_c
 
     monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)
@@ -104,6 +104,13 @@ def test_rollout_counter_counts_what_the_engine_ran(problem_c, monkeypatch):
         return real(sim, mass, *args, **kw)
 
     monkeypatch.setattr(simulate_c, "rollout_poses_host", counting)
+    return ran
+
+
+def test_rollout_counter_counts_what_the_engine_ran(problem_c, monkeypatch):
+    """``count_rollouts`` (the benchmarks' one counter) equals the rollouts the C engine's host
+    callback was asked for during ``fit_grad`` (its cache of recent rollouts off), polish included."""
+    ran = _counted_rollouts(monkeypatch)
     res = fit_grad(problem_c, jax.random.key(1), n_starts=2, n_screen=16, max_steps=6)
     assert sum(ran) == count_rollouts(res, n_screen=16) > 16
 
@@ -113,19 +120,10 @@ def test_search_after_lm_only_lowers_the_cost_and_is_counted(problem_c, monkeypa
     ends lower; its rollouts are counted by ``count_rollouts`` (within the polish's one
     uncertain Jacobian, see its docstring) and reported in the summary."""
     from galileo_jax.inference.grad import SEARCH_POPSIZE
-    from galileo_jax.physics import simulate_c
 
     kw = dict(n_starts=1, n_screen=8, max_steps=3)  # a short LM: room for the search
     plain = fit_grad(problem_c, jax.random.key(3), **kw)
-    monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)
-    ran = []
-    real = simulate_c.rollout_poses_host
-
-    def counting(sim, mass, *args, **kw):
-        ran.append(int(np.shape(mass)[0]))
-        return real(sim, mass, *args, **kw)
-
-    monkeypatch.setattr(simulate_c, "rollout_poses_host", counting)
+    ran = _counted_rollouts(monkeypatch)
     res = fit_grad(problem_c, jax.random.key(3), **kw, search_generations=4)
     assert plain.search is None
     assert res.search["generations"] == 4 and res.search["evaluations"] == 4 * SEARCH_POPSIZE + 1
