@@ -317,6 +317,9 @@ def test_cma_search_climbs_from_a_far_start_and_keeps_held_parameters(problem):
     assert float(problem.log_likelihood(z)[0]) == pytest.approx(found.loglik, abs=1e-2)  # batch-size numerics
     assert found.evaluations == 1 + 16 * found.generations and found.generations == len(seen) <= 30
     assert all(b[1] >= a[1] for a, b in zip(seen, seen[1:]))  # the best so far never falls
+    # patience: generations without progress (here none can count: min_gain too large) end it
+    idle = cma_search(problem, start, popsize=16, generations=30, patience=3, min_gain=1e9)
+    assert idle.stop == {"patience": 3} and idle.generations == 3 and idle.evaluations == 1 + 16 * 3
     with pytest.raises(ValueError, match="bounds"):
         cma_search(problem, np.array([1.5, 0.2, 0.0]))
     with pytest.raises(ValueError, match="popsize"):

@@ -57,7 +57,8 @@ class SearchResult(NamedTuple):
 
 def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int = 32, generations: int = 40,
                seed: int = 0, fixed: Mapping[str, float] | None = None,
-               progress: Callable[[int, float], None] | None = None) -> SearchResult:
+               progress: Callable[[int, float], None] | None = None, patience: int | None = None,
+               min_gain: float = 0.5) -> SearchResult:
     """Maximise the log-likelihood of ``problem`` by CMA-ES from ``theta0``.
 
     The search runs in the unconstrained coordinates z of ``problem.space`` (the bounds are
@@ -78,6 +79,10 @@ def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int 
             (:class:`~galileo_jax.inference.fixed.FixedProblem`); the result is in the
             problem's full coordinates.
         progress: optional callable(generation, best log-likelihood so far).
+        patience: stop after this many generations in a row in which the best log-likelihood
+            rose by no more than ``min_gain`` nats (``stop`` then holds ``{"patience": n}``);
+            None: run ``generations`` (or until pycma stops).
+        min_gain: nats a generation must add to the best to count as progress for ``patience``.
 
     Returns:
         :class:`SearchResult`; its ``theta`` is ``theta0`` (moved inward) if nothing better was found.
@@ -107,6 +112,7 @@ def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int 
     ll_start, evals = best_ll, 1
     es = cma.CMAEvolutionStrategy(z0, float(sigma), {"popsize": int(popsize), "maxiter": int(generations),
                                                      "seed": int(seed) + 1, "verbose": -9})
+    stalled, marker, stop = 0, best_ll, {}
     while not es.stop():
         x = np.asarray(es.ask(), np.float64)
         ll = loglik(x)
@@ -117,7 +123,11 @@ def cma_search(problem, theta0: np.ndarray, *, sigma: float = 0.5, popsize: int 
             best_z, best_ll = x[i].copy(), float(ll[i])
         if progress is not None:
             progress(es.countiter, best_ll)
+        stalled, marker = (0, best_ll) if best_ll > marker + min_gain else (stalled + 1, marker)
+        if patience is not None and stalled >= patience:
+            stop = {"patience": int(patience)}
+            break
     theta_free = np.asarray(sub.space.from_unconstrained(jnp.asarray(best_z)), np.float64)
     theta = sub.full_theta(theta_free) if fixed else theta_free
-    return SearchResult(theta, best_ll, ll_start, evals, int(es.countiter), dict(es.stop()),
+    return SearchResult(theta, best_ll, ll_start, evals, int(es.countiter), stop or dict(es.stop()),
                         time.perf_counter() - t0)
