@@ -37,7 +37,8 @@ again from its best point (:func:`searched`). Measured on a held-out blurred wor
 (coverage benchmark ``world_35``: plain cubes, perspective, k1 0.040, k2 0.096, phi 0.546),
 three screen seeds: log-likelihood 775 / 750 / 773 -> 825 / 816 / 814 (LM started at the truth:
 820), k2 0.152 / 0.147 / 0.138 -> 0.098 / 0.107 / 0.100, phi 0.545 / 0.709 / 0.645 -> 0.578 /
-0.630 / 0.607, for 1,281 more rollouts.
+0.630 / 0.607, for up to 1,281 more rollouts (the search stops after :data:`SEARCH_PATIENCE`
+generations without progress).
 
 Multi-start: ``n_screen`` Latin-hypercube points over the prior box are ranked by likelihood in
 one batched rollout, and the best ``n_starts`` (plus an optional given start, e.g. from the CNN)
@@ -127,8 +128,8 @@ class GradResult(NamedTuple):
             disagreed with the Gauss-Newton interval, ``interval90`` holds the profile's end.
         search: the CMA-ES search after LM (:func:`searched`): ``evaluations`` (rollouts),
             ``generations``, ``loglik_gain`` (nats the search gained over its start),
-            ``kept`` (whether LM from its best replaced the fit) and then ``cost_drop`` (nats);
-            None where none ran.
+            ``kept`` (whether LM from its best replaced the fit) and then ``cost_drop`` (nats)
+            and ``refit_steps`` (that LM's steps); None where none ran.
     """
 
     names: tuple[str, ...]
@@ -376,7 +377,12 @@ def searched(res: GradResult, problem, key: jax.Array, generations: int, *, fd_s
     from galileo_jax.inference.search import cma_search
 
     seed = int(jax.random.randint(key, (), 0, 2**31 - 1))
-    found = cma_search(problem, np.asarray(res.theta, np.float64), sigma=SEARCH_SIGMA, popsize=SEARCH_POPSIZE,
+    # the start rounded to 1e-6 in z: LM ends that differ by floating-point order only (a video
+    # fitted alone or in a batch, 1e-9) then start the same search, which would otherwise part
+    # in the rough likelihood
+    z0 = np.round(np.asarray(res.z, np.float64), 6)
+    start = np.asarray(problem.space.from_unconstrained(jnp.asarray(z0)), np.float64)
+    found = cma_search(problem, start, sigma=SEARCH_SIGMA, popsize=SEARCH_POPSIZE,
                        generations=generations, seed=seed, patience=SEARCH_PATIENCE)
     info = {"evaluations": int(found.evaluations), "generations": int(found.generations),
             "loglik_gain": float(found.loglik - found.loglik_start), "kept": False}
