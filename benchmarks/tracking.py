@@ -151,18 +151,17 @@ def analyse(video: Path) -> dict:
     for i in range(n):
         m = measured[:, i]
         raw = np.linalg.norm(obs.pixels[m, i] - true_px[m, i], axis=-1)
+        # a scale not determined by its own track: the moving objects' (or none)
+        given = None if travel[i] >= MIN_TRAVEL else (float(np.median(moved)) if moved else 1.0)
         if fits[i] is None:
             err, s = raw, 1.0
-        elif travel[i] >= MIN_TRAVEL:
+        elif given is None:
             err, s = fits[i]
-        else:  # its scale is not determined by its own track: the moving objects' (or none)
-            err, s = calibrated_errors(obs.pixels[m, i], true_px[m, i], centre,
-                                       float(np.median(moved)) if moved else 1.0)
-        if sil_px is not None and m.sum() >= 3:  # against the whole silhouette's centroid, same calibration
-            sil, _ = calibrated_errors(obs.pixels[m, i], sil_px[m, i], centre,
-                                       None if travel[i] >= MIN_TRAVEL else (float(np.median(moved)) if moved else 1.0))
         else:
-            sil = None
+            err, s = calibrated_errors(obs.pixels[m, i], true_px[m, i], centre, given)
+        sil = None  # against the whole silhouette's centroid, with the same calibration
+        if sil_px is not None and m.sum() >= 3:
+            sil, _ = calibrated_errors(obs.pixels[m, i], sil_px[m, i], centre, given)
         expected = view[:, i] & ~hand[:, i]
         dropped = int((expected & ~m).sum())
         rec["objects"].append({

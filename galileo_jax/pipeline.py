@@ -429,14 +429,12 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
             problems = batch_problems(scene, [tracked[j].observation for j in members],
                                       **problem_options(scene, cfg))
             fits = fit_grad_batch(problems, k_run, **grad_options(cfg))
-            from galileo_jax.inference.grad import searched, with_profile
+            from galileo_jax.inference.grad import after_lm
 
-            if cfg.grad.search_generations > 0:  # as a single fit does (its key; one search per video)
-                fits = [searched(res, problem, jax.random.fold_in(k_run, 13), cfg.grad.search_generations,
-                                 max_steps=cfg.grad.max_steps) for problem, res in zip(problems, fits)]
-            if cfg.grad.profile:  # as a single fit does (one batched held solve per video)
-                fits = [with_profile(res, problem, max_steps=cfg.grad.max_steps)._replace(search=res.search)
-                        for problem, res in zip(problems, fits)]
+            # as a single fit does: the search and the profile check, per video, from the same key
+            fits = [after_lm(res, problem, k_run, search_generations=cfg.grad.search_generations,
+                             profile=cfg.grad.profile, max_steps=cfg.grad.max_steps)
+                    for problem, res in zip(problems, fits)]
         except Exception as err:  # noqa: BLE001 - the batch failed: every video in it records why
             for j in members:
                 results[j] = GalileoError(str(err)) if isinstance(err, ValueError) else err

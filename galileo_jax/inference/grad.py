@@ -345,13 +345,26 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     cov_z, inflation = widened(jac, r, problem.likelihood, cov_z)
     res = grad_result(space, problem.likelihood.log_norm, z_hat, cov_z, best_cost, theta0, z_end, cost, steps, ok,
                       codes, best, jacobian, 0.0, inflation)
+    res = after_lm(res, problem, key, search_generations=search_generations, profile=profile, fd_step=fd_step,
+                   rtol=rtol, atol=atol, max_steps=max_steps)
+    return res._replace(time_s=time.perf_counter() - t0)
+
+
+def after_lm(res: GradResult, problem, key: jax.Array, *, search_generations: int = 0, profile: bool = False,
+             fd_step: float = DEFAULT_FD_STEP, rtol: float = 1e-4, atol: float = 1e-4,
+             max_steps: int = 40) -> GradResult:
+    """The stages of :func:`fit_grad` after LM and the polish, for one fit ``res`` of ``problem``
+    (also one video's of a batch, :func:`~galileo_jax.inference.batch.fit_grad_batch`, with the
+    batch's ``key``): the search (:func:`searched`, ``search_generations`` > 0, its key folded
+    from ``key``), then the profile check (:func:`with_profile`, ``profile``), whose refit keeps
+    the search's record."""
     if search_generations > 0:
         res = searched(res, problem, jax.random.fold_in(key, 13), search_generations, fd_step=fd_step, rtol=rtol,
                        atol=atol, max_steps=max_steps)
     if profile:
         res = with_profile(res, problem, fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps)._replace(
-            search=res.search)  # (a refit by the profile check keeps the search's record)
-    return res._replace(time_s=time.perf_counter() - t0)
+            search=res.search)
+    return res
 
 
 #: CMA-ES points per generation of the search after LM (:func:`searched`).
