@@ -46,9 +46,22 @@ CONTRAST_MIN = 20.0
 SHADING = 0.12
 
 
-#: Brightness change of an object's colours (relative) that the matte allows pixel by pixel
-#: (the object passing into shade, or nearer a lamp).
+#: Brightness change of an object's colours (relative) that the matte allows for the light on
+#: it in one frame (the object passing into shade, or nearer a lamp: 0.66 measured on a
+#: rendered cube at the edge of a spot-lit view).
 GAIN = 0.35
+
+
+#: Brightness change (relative) that the matte allows pixel by pixel about the light level of
+#: the frame (:func:`light_level`): the object's near face, shaded alike all over, stays in;
+#: a side or top face a perspective camera shows, in another shade, stays out instead of
+#: flipping between object, background and occluder from frame to frame.
+SHADE_SPREAD = 0.15
+
+
+#: Object pixels (explained at some gain) that :func:`light_level` needs, else the level is
+#: unknown.
+LIGHT_PIXELS_MIN = 8
 
 
 CROSS = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
@@ -255,8 +268,8 @@ def thresholds(noise_sd: float) -> tuple[float, float]:
             max(RESIDUAL_SDS * math.sqrt(3.0) * noise_sd, RESIDUAL_MIN))
 
 
-def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd: float
-          ) -> tuple[np.ndarray, np.ndarray]:
+def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd: float,
+          min_lit: float = LIGHT_PIXELS_MIN) -> tuple[np.ndarray, np.ndarray]:
     """The object's matte over a known background.
 
     Args:
@@ -264,6 +277,13 @@ def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd:
         background: (h, w, 3) float32 background at the same pixels.
         palette: the object's colours and their tolerance.
         noise_sd: pixel noise SD of one channel (grey levels).
+        min_lit: object pixels the light level needs (below).
+
+    The colours are taken at the frame's light level: as learned where at least ``min_lit``
+    pixels (half covered or more) are explained by them, else :func:`light_level` of the
+    pixels they do not explain; a pixel may differ from them by a gain of up to
+    :data:`SHADE_SPREAD` (shade within the face), and where the level is unknown, by up to
+    :data:`GAIN` from the learned colours.
 
     Returns:
         ``(alpha, unusable)``: (h, w) float32 alpha in [0, 1] (0 on background and unusable
@@ -278,18 +298,26 @@ def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd:
     bg_thr, _ = thresholds(noise_sd)
     res_thr = palette.tolerance
     F = np.asarray(palette.colours, np.float32)  # (K, 3)
+    alpha, best_r2, contrast2 = _unmix_all(F, d, dd, B)
+    # the light level: as learned where enough of the object is explained as learned (a pale
+    # object's blends with a pale background would pass for it at other gains); else from the
+    # pixels wholly the object's at some gain, and the colours taken at that level
+    differs = dd >= bg_thr * bg_thr
+    level = 1.0
+    if np.count_nonzero(differs & (best_r2 <= res_thr * res_thr) & (alpha >= 0.5)) < max(min_lit, LIGHT_PIXELS_MIN):
+        level = light_level(I[differs & (best_r2 > res_thr * res_thr)], palette, min_lit)
+    spread = GAIN if level is None else SHADE_SPREAD  # the light unknown: any gain within GAIN
+    if level is not None and level != 1.0:
+        F = F * np.float32(level)
+        alpha, best_r2, _ = _unmix_all(F, d, dd, B)
     FF = np.einsum("kc,kc->k", F, F)
-    # with e_k = F_k - B: d.e_k = d.F_k - d.B and |e_k|^2 = |F_k|^2 - 2 F_k.B + |B|^2, as (K, P)
-    # products (no (K, P, 3) arrays)
-    ee = np.maximum(FF[:, None] - 2.0 * (F @ B.T) + np.einsum("pc,pc->p", B, B)[None], 0.0)
-    alpha, best_r2 = _unmix(F @ d.T - np.einsum("pc,pc->p", d, B)[None], dd, ee)
-    contrast2 = ee.max(axis=0)
-    # where no colour explains a pixel as learned, the colour as the light there makes it (a
-    # gain in [1 - GAIN, 1 + GAIN], from the pixel taken as wholly the object's): shade, a lamp
-    # to one side; edges already explained keep their alpha
+    # where no colour explains a pixel at the frame's light level, the colour as the light
+    # there makes it (a gain in [1 - SHADE_SPREAD, 1 + SHADE_SPREAD] about that level, or within
+    # GAIN of the learned colour where the level is unknown, from the pixel taken as wholly the
+    # object's); edges already explained keep their alpha
     far = np.flatnonzero(best_r2 > res_thr * res_thr)
     if len(far):
-        g = np.clip(F @ I[far].T / np.maximum(FF, 1e-6)[:, None], 1.0 - GAIN, 1.0 + GAIN)  # (K, m)
+        g = np.clip(F @ I[far].T / np.maximum(FF, 1e-6)[:, None], 1.0 - spread, 1.0 + spread)  # (K, m)
         e = g[..., None] * F[:, None] - B[far][None]  # (K, m, 3)
         a, r2 = _unmix(np.einsum("mc,kmc->km", d[far], e), dd[far], np.einsum("kmc,kmc->km", e, e))
         take = r2 < best_r2[far]
@@ -305,6 +333,54 @@ def matte(image: np.ndarray, background: np.ndarray, palette: Palette, noise_sd:
     unusable = odd | (contrast < max(CONTRAST_MIN, 2 * bg_thr))
     alpha = np.where(is_bg | unusable, 0.0, alpha).astype(np.float32)
     return alpha, unusable
+
+
+def light_level(pixels: np.ndarray, palette: Palette, min_pixels: float = LIGHT_PIXELS_MIN) -> float | None:
+    """The light on an object in one frame, relative to its palette's: the median gain g (in
+    [1 - GAIN, 1 + GAIN]) of the pixels that are wholly one of its colours at some gain
+    (|I - g F_k| within the palette's tolerance, g = I.F_k / |F_k|^2 for the best k). Pixels
+    mixed with the background at its edges, an occluder and faces in another shade mostly fail
+    that test; the face that shows most (a cube's near face) sets the level.
+
+    Args:
+        pixels: (m, 3) float32 BGR pixels that differ from the background (in :func:`matte`,
+            those its learned colours do not explain).
+        palette: the object's colours.
+        min_pixels: pixels that must pass the test, else the level is unknown: a motion-blurred
+            object has few pixels wholly its own, and the blend of its colour with the
+            background's at the others can pass for it at another gain (measured: a 12 px cube
+            blurred over 10 px lost 16 frames when its level was taken from them).
+
+    Returns:
+        The gain, or None where fewer than ``min_pixels`` (and :data:`LIGHT_PIXELS_MIN`) pass.
+    """
+    need = max(float(min_pixels), LIGHT_PIXELS_MIN)
+    if len(pixels) < need:
+        return None
+    F = np.asarray(palette.colours, np.float32)
+    FF = np.maximum(np.einsum("kc,kc->k", F, F), 1e-6)
+    proj = pixels @ F.T  # (m, K)
+    g = np.clip(proj / FF[None], 1.0 - GAIN, 1.0 + GAIN)
+    r2 = np.einsum("mc,mc->m", pixels, pixels)[:, None] - 2 * g * proj + g * g * FF[None]
+    k = np.argmin(r2, axis=1)
+    rows = np.arange(len(pixels))
+    ok = r2[rows, k] <= palette.tolerance ** 2
+    if ok.sum() < need:
+        return None
+    return float(np.median(g[rows, k][ok]))
+
+
+def _unmix_all(F: np.ndarray, d: np.ndarray, dd: np.ndarray, B: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_unmix` of P pixels (``d`` (P, 3) = I - B, ``dd`` (P,) = |d|^2, ``B`` (P, 3)) with
+    K colours ``F`` (K, 3): ``(alpha, residual^2, contrast^2)``, each (P,), contrast^2 the
+    largest |F_k - B|^2."""
+    FF = np.einsum("kc,kc->k", F, F)
+    # with e_k = F_k - B: d.e_k = d.F_k - d.B and |e_k|^2 = |F_k|^2 - 2 F_k.B + |B|^2, as (K, P)
+    # products (no (K, P, 3) arrays)
+    ee = np.maximum(FF[:, None] - 2.0 * (F @ B.T) + np.einsum("pc,pc->p", B, B)[None], 0.0)
+    alpha, best_r2 = _unmix(F @ d.T - np.einsum("pc,pc->p", d, B)[None], dd, ee)
+    return alpha, best_r2, ee.max(axis=0)
 
 
 def _unmix(de: np.ndarray, dd: np.ndarray, ee: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

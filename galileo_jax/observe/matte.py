@@ -9,8 +9,10 @@ such an object in every frame from its *colour matte* instead:
   along a first, rough track); pixels no frame shows free (an object that never moves) are
   filled from their surroundings (``cv2.inpaint``).
 * **Matte** (:func:`~galileo_jax.observe.colour.matte`): a pixel I in front of the background B is explained by the object
-  if it lies on the segment from B to one of the object's colours F_k (or F_k brightened or
-  darkened by up to :data:`~galileo_jax.observe.colour.GAIN`, as light and shade change along the path), I = B + alpha (F_k - B):
+  if it lies on the segment from B to one of the object's colours F_k at the frame's light
+  level (:func:`~galileo_jax.observe.colour.light_level`: the colours brightened or darkened by up to
+  :data:`~galileo_jax.observe.colour.GAIN`, as light and shade change along the path; a pixel by
+  :data:`~galileo_jax.observe.colour.SHADE_SPREAD` more), I = B + alpha (F_k - B):
   alpha in [0, 1] is the fraction of the pixel the object covers (anti-aliased edges, motion
   blur), the linear "difference matting" of a single-colour object over a known background
   (Smith & Blinn, "Blue screen matting", SIGGRAPH 1996, eq. 3, with a per-pixel background).

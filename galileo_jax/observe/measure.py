@@ -25,6 +25,13 @@ OCCLUSION_MAX = 0.03
 CLEAN_SEEN = 0.03
 
 
+#: Share of the object's clean area that must be wholly its colour (at some gain) for the
+#: matte to take the frame's light level from it (:func:`~galileo_jax.observe.colour.light_level`);
+#: a motion-blurred object with less is matted with any gain within
+#: :data:`~galileo_jax.observe.colour.GAIN`.
+LIGHT_SHARE = 0.4
+
+
 class Measurement(NamedTuple):
     """One object in one frame.
 
@@ -157,7 +164,8 @@ def measure(frame: np.ndarray, background: ColourBackground, look: Look, guess, 
         return NOT_FOUND
     lo, hi = box
     img = frame[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
-    alpha, unusable = matte(img, background.image[lo[1]:hi[1], lo[0]:hi[0]], look.palette, background.noise_sd)
+    alpha, unusable = matte(img, background.image[lo[1]:hi[1], lo[0]:hi[0]], look.palette, background.noise_sd,
+                            min_lit=LIGHT_SHARE * look.area)
     hidden = np.zeros(alpha.shape, bool)  # under another object's footprint: not this one's
     for other_centre, other_half, other_angle in keep_out:
         hidden |= footprint(alpha.shape, other_centre, other_half, other_angle, offset=lo)

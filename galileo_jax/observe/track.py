@@ -479,7 +479,10 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
     it) keep their KLT track only where it agreed with the colour track (median distance at
     most :data:`CROSS_CHECK_AGREE_PX`) and no other object's colour track was lost: only where
     the others are measured can a KLT track that moved onto one of them be caught. Else the
-    colour track replaces it, its frames from the loss on unmeasured.
+    colour track replaces it, its frames from the loss on unmeasured. A steadier colour track
+    does not replace a KLT track on probation: it stops where it was lost, and KLT goes on
+    (measured: fit_world's plain_persp_9, object 1 measured in 40 of 65 frames instead of 65,
+    and phi, which needs the frames after the impact, unidentified).
 
     Returns:
         the tracks, (n,) median distances (px; NaN where not compared), (n,) frames dropped.
@@ -532,7 +535,8 @@ def _cross_check(tracks: Tracks, colour: dict, methods: list[str], directions=No
             continue
         sd_klt = max(estimate_noise_sd(px[both, i, j]) for j in range(2))
         sd_col = max(estimate_noise_sd(px_c[both, j]) for j in range(2))
-        if sd_col < STEADIER * sd_klt:
+        # the steadier track, but not a colour track that was lost (KLT on probation goes on after it)
+        if sd_col < STEADIER * sd_klt and i not in probation:
             take_colour(i, px_c, valid_c, q_c)
             continue
         bad = both & (d > CROSS_CHECK_PX)
