@@ -117,6 +117,36 @@ def test_a_rough_profile_ends_beyond_its_farthest_point_inside():
     assert chk.bounded.all() and all(len(pts) > 3 for pts in chk.searched.values())
 
 
+def test_a_profile_that_dips_after_rising_is_still_bounded():
+    """Held fits on a rough likelihood: the root deviance rises to 1.4 and falls back to 1.24 a
+    step farther (a ripple), with no point outside yet when the rounds run out. The end is
+    extrapolated along the mean rise from the optimum (about 1.33 x the farthest point inside),
+    not taken as unbounded (the prior's bound: a friction interval from 0 to the estimate)."""
+    sd = 0.2
+    pts = {1.0: 1.073 / Z90, 1.5: 1.416 / Z90, 2.0: 1.237 / Z90}  # root deviance / 1.645 at distance / (1.645 SD)
+
+    def root(dist):
+        x = dist / (Z90 * sd)
+        for k in sorted(pts):
+            if x <= k * 1.001:
+                return Z90 * pts[k]
+        return 1.237  # flat beyond: no point outside within the rounds
+
+    def solve(z0, j, v, data):
+        z = np.array(z0)
+        z[np.arange(len(z)), np.asarray(j)] = np.asarray(v)
+        return jnp.asarray(z), jnp.asarray([0.5 * root(abs(float(x))) ** 2 for x in np.asarray(v)])
+
+    chk = profile_check(solve, None, np.zeros(2), 0.0, np.diag([sd ** 2, 1.0]), None, [0], rounds=2)
+    assert chk.disagrees[0].all()
+    assert chk.bounded[0].all(), chk.searched
+    ends = np.abs(chk.interval_z[0])
+    assert np.all(ends < 4.0 * Z90 * sd), ends  # not the search's limit (8 in z)
+    far_inside = [max(d for d, r in pts_ if r <= Z90) for pts_ in ({abs(z): r for z, r in v}.items()
+                                                                  for v in chk.searched.values())]
+    assert np.all(ends >= np.array(far_inside) - 1e-9), (ends, far_inside)
+
+
 def test_profile_check_refuses_a_coordinate_without_variance():
     solve = jax.jit(held_lm_solver(lambda z, d: z - d, 1e-8, 1e-8, 10))
     with pytest.raises(ValueError, match="finite positive"):

@@ -219,7 +219,12 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
     def end_of(pts):
         """(distance, bounded) of a side's end: from its farthest point inside (root <= 1.645)
         to the nearest point beyond that is outside, linearly in the root deviance; with none
-        outside yet, the secant through its two farthest points, extrapolated."""
+        outside yet, the secant through its two farthest points, extrapolated. Where that
+        secant does not rise (a rough profile: held fits stop in ripples, so the root deviance
+        can fall from one point to the next), the mean rise from the optimum to the farthest
+        point inside stands in for it; only a profile that has not risen at all is unbounded
+        (measured: the shipped example's k1 profile at 1.07, 1.42, 1.24 read as unbounded and
+        reported k1 0.200 [8e-05, 0.204])."""
         d_in, r_in = max(p for p in pts if p[1] <= Z90)
         out = [p for p in pts if p[1] > Z90 and p[0] > d_in]
         if out:
@@ -227,6 +232,8 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
             return d_in + (Z90 - r_in) * (d_out - d_in) / (r_out - r_in), True
         (d_a, r_a) = max(p for p in pts if p[0] < d_in)
         slope = (r_in - r_a) / (d_in - d_a)
+        if slope <= 1e-9:
+            slope = r_in / d_in
         far = min(d_in + (Z90 - r_in) / slope, MAX_Z_DISTANCE) if slope > 1e-9 else MAX_Z_DISTANCE
         return max(far, d_in), far < MAX_Z_DISTANCE
 
