@@ -357,17 +357,27 @@ def light_level(pixels: np.ndarray, palette: Palette, min_pixels: float = LIGHT_
     need = max(float(min_pixels), LIGHT_PIXELS_MIN)
     if len(pixels) < need:
         return None
-    F = np.asarray(palette.colours, np.float32)
-    FF = np.maximum(np.einsum("kc,kc->k", F, F), 1e-6)
-    proj = pixels @ F.T  # (m, K)
-    g = np.clip(proj / FF[None], 1.0 - GAIN, 1.0 + GAIN)
-    r2 = np.einsum("mc,mc->m", pixels, pixels)[:, None] - 2 * g * proj + g * g * FF[None]
-    k = np.argmin(r2, axis=1)
-    rows = np.arange(len(pixels))
-    ok = r2[rows, k] <= palette.tolerance ** 2
+    g, r2 = best_gain(pixels, palette.colours)
+    ok = r2 <= palette.tolerance ** 2
     if ok.sum() < need:
         return None
-    return float(np.median(g[rows, k][ok]))
+    return float(np.median(g[ok]))
+
+
+def best_gain(pixels: np.ndarray, colours: np.ndarray, spread: float = GAIN) -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel as the nearest of ``colours`` brightened or darkened: for (m, 3) BGR
+    ``pixels`` and (K, 3) ``colours`` F_k, the gain g = clip(I.F_k / |F_k|^2, 1 - ``spread``,
+    1 + ``spread``) and squared distance |I - g F_k|^2 (grey levels^2) of the colour that
+    leaves the least: ``(gain, distance^2)``, each (m,)."""
+    pixels = np.asarray(pixels, np.float32)
+    F = np.asarray(colours, np.float32)
+    FF = np.maximum(np.einsum("kc,kc->k", F, F), 1e-6)
+    proj = pixels @ F.T  # (m, K)
+    g = np.clip(proj / FF[None], 1.0 - spread, 1.0 + spread)
+    r2 = np.maximum(np.einsum("mc,mc->m", pixels, pixels)[:, None] - 2 * g * proj + g * g * FF[None], 0.0)
+    k = np.argmin(r2, axis=1)
+    rows = np.arange(len(pixels))
+    return g[rows, k], r2[rows, k]
 
 
 def _unmix_all(F: np.ndarray, d: np.ndarray, dd: np.ndarray, B: np.ndarray

@@ -8,7 +8,8 @@ such an object in every frame from its *colour matte* instead:
   video, leaving out, pixel by pixel, the frames in which an object covers it (its footprint
   along a first, rough track); pixels no frame shows free (an object that never moves) are
   filled from their surroundings (``cv2.inpaint``).
-* **Matte** (:func:`~galileo_jax.observe.colour.matte`): a pixel I in front of the background B is explained by the object
+* **Matte** (:func:`~galileo_jax.observe.colour.matte`): a pixel I in front of the background B is
+  explained by the object
   if it lies on the segment from B to one of the object's colours F_k at the frame's light
   level (:func:`~galileo_jax.observe.colour.light_level`: the colours brightened or darkened by up to
   :data:`~galileo_jax.observe.colour.GAIN`, as light and shade change along the path; a pixel by
@@ -30,7 +31,8 @@ Each measurement carries a quality in [0, 1]: the fraction of the object's matte
 seen and agreed with its template (:class:`~galileo_jax.observe.measure.Measurement`).
 
 * **Track** (:func:`track_matte`): every frame is measured where a rough track (template
-  matching, :mod:`galileo_jax.observe.rough`) puts the object; a centre that walked farther from it than its margin plus the
+  matching, :mod:`galileo_jax.observe.rough`) puts the object; a centre that walked farther from
+  it than its margin plus the
   object's size is not taken. Where the rough track lost an object, it is followed on from
   its own measurements (:func:`_bridge`). Two objects cannot pass through each other: where both
   are measured, apart, in the reverse of their start's order (look-alikes whose tracks took each
@@ -49,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from galileo_jax.errors import TrackingError
-from galileo_jax.observe.colour import (GAIN, ColourBackground, Look, Palette, colour_background,
+from galileo_jax.observe.colour import (ColourBackground, Look, Palette, best_gain, colour_background,
                                         learn_template, object_colours, unlearn_objects)
 from galileo_jax.observe.measure import measure
 from galileo_jax.observe.rough import rough_pass, static_scenery
@@ -168,7 +170,8 @@ def _clean_frames(px: np.ndarray, good: np.ndarray, i: int, halves, speed: np.nd
     # frame (the start pixel may be one found in motion, a few diagonals down the ramp)
     first = np.all(np.isfinite(px[:, i]), axis=1)
     rest = px[int(np.argmax(first)), i] if first.any() else start[i]
-    moved = ok & (np.linalg.norm(px[:, i] - start[i], axis=-1) > diag) & (np.linalg.norm(px[:, i] - rest, axis=-1) > diag)
+    moved = ok & (np.linalg.norm(px[:, i] - start[i], axis=-1) > diag) & \
+        (np.linalg.norm(px[:, i] - rest, axis=-1) > diag)
     use = moved if after_moving and moved.sum() >= 3 else ok
     ks = np.flatnonzero(use)
     if len(ks) > n_max:
@@ -312,7 +315,8 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
     speed = _speeds(rough)
     reach = max(math.hypot(*h) for h in halves) + 8 + 0.6 * float(speed.max())
     region = (np.nanmin(rough, axis=(0, 1)) - reach, np.nanmax(rough, axis=(0, 1)) + reach + 1)
-    # clean-frame candidates: the object confirmed against the scenery (:func:`~galileo_jax.observe.rough._recentre`), else
+    # clean-frame candidates: the object confirmed against the scenery
+    # (:func:`~galileo_jax.observe.rough._recentre`), else
     # (an object that hardly moves) matched about as well as usual
     good = np.isfinite(rough_rms)
     for i in range(n):
@@ -376,10 +380,7 @@ def _look_alike(a: Palette, b: Palette) -> bool:
     brightened or darkened by up to :data:`~galileo_jax.observe.colour.GAIN` (as the matte
     explains a pixel: each object would be matted as the other)."""
     def explained(x: Palette, by: Palette) -> bool:
-        F = by.colours.astype(float)
-        g = np.clip(x.colours @ F.T / np.maximum(np.einsum("kc,kc->k", F, F), 1e-6), 1.0 - GAIN, 1.0 + GAIN)
-        d = np.linalg.norm(x.colours[:, None] - g[..., None] * F[None], axis=-1)  # (Kx, Kby)
-        return bool(np.all(d.min(axis=1) <= by.tolerance))
+        return bool(np.all(best_gain(x.colours, by.colours)[1] <= by.tolerance ** 2))
     return explained(a, b) and explained(b, a)
 
 
@@ -416,7 +417,8 @@ def _bridge(frames, bg: ColourBackground, looks, pixels: np.ndarray, quality: np
             halves, angles: np.ndarray, quality_min: float, coast: int = 3) -> None:
     """Follow each object on from its own measurements where the rough track left it (in place).
 
-    After the last frame of a measured run, each next frame is measured (:func:`~galileo_jax.observe.measure.measure`) where
+    After the last frame of a measured run, each next frame is measured
+    (:func:`~galileo_jax.observe.measure.measure`) where
     the object's last two measured centres (constant velocity) put it, keeping out of the other
     objects' footprints where they are measured; a measurement of quality >=
     :data:`BRIDGE_QUALITY` (stricter than ``quality_min``: no rough match confirms it) is taken

@@ -258,7 +258,8 @@ def observation_from_tracks(tracks: Tracks | SceneTracks, scene: Scene, fps: flo
     return Observation(
         frame_times=times, positions=positions, pixels=pixels,
         profile=profile_from_positions(positions, times), position_sd=sd,
-        mask=_mask(times, valid, release, scene, fps, _last_motion(pixels, valid, sd.reshape(n, 2).max(axis=1) * scale)),
+        mask=_mask(times, valid, release, scene, fps,
+                   _last_motion(pixels, valid, sd.reshape(n, 2).max(axis=1) * scale)),
         release_time=release, fps=float(fps), moved=moved,
         tracking=None if info is None else TrackingInfo(info[0], np.asarray(tracks.quality, float), valid,
                                                         int(anchor_frame), np.asarray(info[1], float), QUALITY_MIN),
