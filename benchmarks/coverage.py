@@ -23,15 +23,19 @@ nuisance within +-3% and cnn takes the scale as exact). The intervals are the ce
 Gaussian approximation); the rank is the share of draws below the truth. ``grad-plain`` is grad's own fits with the
 Gauss-Newton intervals it had before widening them to the sandwich estimate's (draws shrunk back
 about the estimate by each parameter's widening factor): the widening's effect on the same fits.
+A method name ending ``@ensK`` (e.g. ``grad@ens8``) fits with ``likelihood.ensemble: K``
+(``fit --ensemble K``: each simulated profile the mean of K rollouts from starts shifted within
+one physics step).
 
-    python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn,grad+cnn] [--work DIR]
-        [--rerun [--rerun-only grad/world,...]]
+    python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn,grad+cnn,grad@ens8] [--work DIR]
+        [--rerun [--rerun-only grad/world,...]] [--families world,...]
 
 Writes ``benchmarks/results/coverage.{md,json}``; videos and per-video records go under
 ``--work`` (default ``benchmarks/results/coverage/``; videos not kept in git). Resumable: a video
 with a record is not fitted again (``--rerun`` fits again; ``--rerun-only`` limits that to the
 named method/family pairs, the others' records are read as they are; ``--keep-since`` keeps the
-records fitted since a time, to resume an interrupted rerun).
+records fitted since a time, to resume an interrupted rerun; ``--families`` fits only the named
+families' videos).
 """
 
 from __future__ import annotations
@@ -101,7 +105,8 @@ def truth_record(draws: np.ndarray, truth: float) -> dict:
 
 
 def fit_one(video: Path, method: str) -> dict:
-    """Fit ``video`` as ``fit --method METHOD`` does (``grad+cnn``: ``--method grad --init cnn``);
+    """Fit ``video`` as ``fit --method METHOD`` does (``grad+cnn``: ``--method grad --init cnn``;
+    ``grad@ens8``: ``--method grad --ensemble 8``);
     its record (an ``error`` if it failed)."""
     from galileo_jax.config import FitConfig
     from galileo_jax.pipeline import run_fit
@@ -112,8 +117,11 @@ def fit_one(video: Path, method: str) -> dict:
            "fitted_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     t = time.perf_counter()
     try:
-        name, _, init = method.partition("+")
-        rep = run_fit(video, load_scene(video.with_suffix(".yaml")), FitConfig(), method=name,
+        base, _, ensemble = method.partition("@ens")
+        name, _, init = base.partition("+")
+        cfg = FitConfig()
+        cfg.likelihood.ensemble = int(ensemble or 1)
+        rep = run_fit(video, load_scene(video.with_suffix(".yaml")), cfg, method=name,
                       out=video.parent / f"{video.stem}_{method}", overlay=False, progress=False,
                       init=init or "prior")
     except Exception as err:  # noqa: BLE001 - a failure is a result here
@@ -277,17 +285,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--videos", type=int, default=100)
     ap.add_argument("--methods", default="grad",
-                    help="comma-separated fit methods (grad, mh, cnn; grad+cnn: grad started from the CNN)")
+                    help="comma-separated fit methods (grad, mh, cnn; grad+cnn: grad started from the CNN; "
+                         "grad@ens8: grad with a rollout ensemble of 8)")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--work", type=Path, default=RESULTS / "coverage")
     ap.add_argument("--rerun", action="store_true", help="fit again videos that have a record")
     ap.add_argument("--rerun-only", default="", metavar="M/F,...",
                     help="with --rerun, fit again only these method/family pairs (e.g. grad/world,mh/world)")
+    ap.add_argument("--families", default="", metavar="F,...",
+                    help="fit only videos of these families (e.g. world); the others' records are read where "
+                         "they exist")
     ap.add_argument("--keep-since", default="", metavar="DATE",
                     help="with --rerun, keep records fitted on or after this UTC date or time (ISO, e.g. "
                          "2026-11-26T23:00): resumes an interrupted rerun")
     args = ap.parse_args(argv)
     only = {tuple(x.strip().split("/", 1)) for x in args.rerun_only.split(",") if x.strip()}
+    families = {x.strip() for x in args.families.split(",") if x.strip()}
     from tqdm import tqdm
 
     from galileo_jax.jaxcache import enable_compilation_cache
@@ -308,6 +321,10 @@ def main(argv=None) -> int:
                 refit = json.loads(path.read_text()).get("fitted_utc", "") < args.keep_since
             if path.exists() and not refit:
                 records.append(json.loads(path.read_text()))
+                continue
+            if families and family not in families:
+                if path.exists():
+                    records.append(json.loads(path.read_text()))
                 continue
             render(j, args.work, args.seed)  # renders only where the video is not there yet
             rec = fit_one(video, method)

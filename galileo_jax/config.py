@@ -71,10 +71,16 @@ class CNNConfig(_Strict):
 
 
 class LikelihoodConfig(_Strict):
-    """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise."""
+    """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise.
+    ``ensemble``: each simulated profile is the mean of this many rollouts whose start is
+    shifted by fractions of a physics step's travel
+    (:func:`galileo_jax.physics.simulate.ensemble_offsets`), which smooths the likelihood's
+    pseudo-random response to where in a step the impact falls; it costs that many times the
+    rollouts (1: off; 8 measured on held-out world_41, ``docs/measurements.md``)."""
 
     kind: str = DEFAULT_KIND
     sd_model: float = Field(DEFAULT_SD_MODEL, ge=0)
+    ensemble: int = Field(1, ge=1, le=64)
 
 
 class PredictionConfig(_Strict):

@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="relative tolerance of the camera's scale where the scene file states none (default 0.03: "
                         "grad and mh fit a nuisance scale_error within +-TOL; 0 takes the scale as exact)")
     p.add_argument("--likelihood", help="likelihood kind: gaussian_iid (default), gaussian_ma1, seed_gaussian, emd, rms")
+    p.add_argument("--ensemble", type=int, metavar="K",
+                   help="each simulated profile the mean of K rollouts from starts shifted within one physics "
+                        "step (smooths the likelihood at collisions; K times the rollouts; default 1: off)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -79,6 +82,8 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         cfg.grad.starts = args.starts
     if args.likelihood is not None:
         cfg.likelihood.kind = args.likelihood
+    if args.ensemble is not None:
+        cfg.likelihood.ensemble = args.ensemble
     if args.engine is not None:
         cfg.engine = args.engine
     if args.cnn_model is not None:
@@ -94,9 +99,12 @@ def _settings(args) -> "FitConfig":  # noqa: F821
         from galileo_jax.effects import resolve_effects
 
         cfg.effects = [e.name for e in resolve_effects(args.effects)]  # unknown name: one-line error
-    for name, value in (("--chains", args.chains), ("--starts", args.starts), ("--samples", args.samples)):
+    for name, value in (("--chains", args.chains), ("--starts", args.starts), ("--samples", args.samples),
+                        ("--ensemble", args.ensemble)):
         if value is not None and value < 1:
             raise GalileoError(f"{name} must be a positive integer, got {value}")
+    if args.ensemble is not None and args.ensemble > 64:
+        raise GalileoError(f"--ensemble must be at most 64 (each rollout becomes that many), got {args.ensemble}")
     if args.warmup is not None and args.warmup < 0:
         raise GalileoError(f"--warmup must be >= 0, got {args.warmup}")
     return cfg

@@ -58,7 +58,10 @@ measured tracking noise): a few nats of log L noise, posterior SD still ~0.002 i
 floor acts as a coarsened likelihood (robustness to the simulator's roughness and to real
 model error) rather than as the simulator's literal discretisation error. Lower it for
 sharper but rougher posteriors; ``gaussian_ma1`` is the exact likelihood when tracking noise
-dominates all model error.
+dominates all model error. The roughness itself can be averaged away at a price: a rollout
+ensemble over where in a physics step the contact events fall
+(:func:`galileo_jax.physics.simulate.ensemble_offsets`, ``fit --ensemble K``, K times the
+rollouts) cut it from 4.3 / 2.9 to 1.1 / 1.1 nats along k2 / phi on a held-out render.
 
 The observation is DATA, not code. A :class:`Likelihood` is a JAX pytree: its arrays (the
 observed profile, the mask, the whitening matrices, the normalising constant) are leaves and

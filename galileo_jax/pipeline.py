@@ -305,9 +305,9 @@ def scene_for_fit(scene: Scene, cfg: FitConfig, method: str = "grad", init: str 
 
 
 def problem_options(scene: Scene, cfg: FitConfig) -> dict:
-    """:class:`Problem`'s likelihood, sd_model, effects and engine for a fit of ``scene`` with ``cfg``."""
+    """:class:`Problem`'s likelihood, sd_model, ensemble, effects and engine for a fit of ``scene`` with ``cfg``."""
     return dict(likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects,
-                engine=fit_engine(scene, cfg))
+                engine=fit_engine(scene, cfg), ensemble=cfg.likelihood.ensemble)
 
 
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,

@@ -77,6 +77,8 @@ def test_unknown_option_and_method(tmp_path):
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--frobnicate"), "--frobnicate")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--method", "magic"), "magic")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--chains", "0"), "--chains")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--ensemble", "0"), "--ensemble")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--ensemble", "100"), "--ensemble")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--engine", "bullet"), "bullet")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--engine", "mujoco", "--effects", "quadratic_drag"),
                           "--engine mjx")

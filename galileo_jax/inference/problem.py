@@ -293,18 +293,19 @@ def release_margin(scene: Scene) -> float:
 
 
 def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_batch: int,
-               engine: str = "mjx") -> Engine:
+               engine: str = "mjx", ensemble: int = 1) -> Engine:
     """The shared :class:`Engine` for these settings (built once per process and key); its
     rollouts cover ``seconds`` after the release plus the release-time window, on the
-    simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.physics.simulate.make_simulator`)."""
+    simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.physics.simulate.make_simulator`),
+    each the mean of ``ensemble`` rollouts (:func:`~galileo_jax.physics.simulate.ensemble_offsets`)."""
     length = _blocks(seconds + release_margin(scene), fps)  # an earlier release runs longer
-    settings = (float(fps), tuple(effects), int(max_batch), engine)
+    settings = (float(fps), tuple(effects), int(max_batch), engine) + ((int(ensemble),) if ensemble != 1 else ())
     scene_id = ("scene", scene_key(scene), float(scene.camera.scale_tolerance or 0.0))
     own = scene_id + settings + (length,)
     if own in _ENGINES:
         _ENGINES.move_to_end(own)
         return _ENGINES[own]
-    sim = make_simulator(scene, float(fps), effects, engine)
+    sim = make_simulator(scene, float(fps), effects, engine, ensemble)
     space = ParamSpace.from_scene(scene, effects)
     # The C engine's rollouts read the MjModel on the host: its programs are the scene's own.
     shared = structure_key(sim) if engine == "mjx" else scene_id
@@ -401,6 +402,10 @@ class Problem(BatchedAPI):
         pad_to: optional length (samples) to pad the profile to at least (rounded up to
             :data:`PAD_SAMPLES`): videos fitted as one batch
             (:func:`~galileo_jax.inference.batch.fit_grad_batch`) share one length.
+        ensemble: simulated profiles as the mean of this many rollouts from start positions
+            shifted by fractions of a physics step's travel
+            (:func:`~galileo_jax.physics.simulate.ensemble_offsets`): a likelihood smoothed over
+            where in a step the contact events fall, at ``ensemble`` times the rollouts.
 
     Raises:
         ValueError: the observation does not match the scene (number of objects), or any
@@ -416,7 +421,7 @@ class Problem(BatchedAPI):
 
     def __init__(self, scene: Scene, observation: Observation, likelihood: str = DEFAULT_KIND,
                  sd_model: float = DEFAULT_SD_MODEL, max_batch: int | None = None, effects=(),
-                 engine: str = "mjx", pad_to: int | None = None):
+                 engine: str = "mjx", pad_to: int | None = None, ensemble: int = 1):
         n_traces = 2 * scene.n_objects
         if np.shape(observation.profile)[0] != n_traces:
             raise ValueError(f"observation has {np.shape(observation.profile)[0]} velocity traces, "
@@ -432,7 +437,7 @@ class Problem(BatchedAPI):
         n_pad = PAD_SAMPLES * math.ceil(max(n, int(pad_to or 0)) / PAD_SAMPLES)
         lik = make_likelihood(observation, likelihood, sd_model, n_samples=n_pad)
         ft = padded_frame_times(observation.frame_times, fps, n_pad)
-        self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch, engine)
+        self.engine = get_engine(scene, fps, self.effects, float(ft[-1]), max_batch, engine, ensemble)
         release = float(observation.release_time)
         self.data = ProblemData(jnp.asarray(ft), jnp.asarray(release), lik, self.engine.sim.arrays,
                                 jnp.asarray(live_steps(scene, self.engine.sim, observation, ft, self.n_steps)))

@@ -75,7 +75,8 @@ def check_supported(effects) -> None:
 
 
 def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = None,
-             velocity: np.ndarray | None = None) -> tuple[list[mujoco.MjModel], np.ndarray]:
+             velocity: np.ndarray | None = None, offset: np.ndarray | None = None
+             ) -> tuple[list[mujoco.MjModel], np.ndarray]:
     """One C model per rollout with its parameters set, and the initial states.
 
     Args:
@@ -85,6 +86,8 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = 
         fields: optional {model field name: (B, ...) values} written after the masses and
             frictions (the effects' model updates, whole fields).
         velocity: optional (B, n_objects, 3) release velocities in m/s (the effects').
+        offset: optional (B, n_objects, 3) shifts (m) of the objects' start positions
+            (:func:`galileo_jax.physics.simulate.ensemble_offsets`).
 
     Returns:
         (models, state0): B ``MjModel`` copies and (B, nstate) full physics states at release.
@@ -103,13 +106,16 @@ def c_models(sim, mass: np.ndarray, friction: np.ndarray, fields: dict | None = 
         if velocity is not None:
             for i, d in enumerate(index.dof):
                 data.qvel[d:d + 3] += velocity[b, i]
+        if offset is not None:
+            for i, q in enumerate(index.qpos):
+                data.qpos[q:q + 3] += offset[b, i]
         mujoco.mj_getState(m, data, state0[b], _STATE_SPEC)
         models.append(m)
     return models, state0
 
 
 def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int, fields: dict | None = None,
-                       velocity: np.ndarray | None = None) -> np.ndarray:
+                       velocity: np.ndarray | None = None, offset: np.ndarray | None = None) -> np.ndarray:
     """Batched C MuJoCo rollouts on the host (NumPy in, NumPy out).
 
     Args:
@@ -117,6 +123,7 @@ def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int
         mass, friction: (B, n_objects).
         n_steps: physics steps.
         fields, velocity: the effects' model updates and release velocities (:func:`c_models`).
+        offset: optional start-position shifts (:func:`c_models`).
 
     Returns:
         (B, n_steps + 1, n_objects, 3) poses: centre x, z (m) and pitch about y (rad), as
@@ -127,9 +134,9 @@ def rollout_poses_host(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int
             return None if a is None else a[i:i + MAX_CALL]
         return np.concatenate([rollout_poses_host(sim, mass[i:i + MAX_CALL], friction[i:i + MAX_CALL], n_steps,
                                                   {k: v[i:i + MAX_CALL] for k, v in (fields or {}).items()},
-                                                  part(velocity, i))
+                                                  part(velocity, i), part(offset, i))
                                for i in range(0, mass.shape[0], MAX_CALL)])
-    models, state0 = c_models(sim, mass, friction, fields, velocity)
+    models, state0 = c_models(sim, mass, friction, fields, velocity, offset)
     nthread = os.cpu_count() or 1
     # A fresh thread pool per call: mujoco.rollout's persistent pool crashed (segfault) when
     # called from XLA's host-callback threads with batches of changing size.
@@ -147,7 +154,7 @@ def clear_rollout_cache() -> None:
 
 
 def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int, fields: dict | None = None,
-                         velocity: np.ndarray | None = None) -> np.ndarray:
+                         velocity: np.ndarray | None = None, offset: np.ndarray | None = None) -> np.ndarray:
     """:func:`rollout_poses_host`, simulating only the rows (rollouts) whose exact inputs it has not
     simulated recently (:data:`CACHE_ROLLOUTS`), each distinct row once: the same poses, since a
     rollout is a deterministic function of its inputs. Thread-safe (XLA may run callbacks
@@ -157,11 +164,12 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
     """
     B = mass.shape[0]
     if CACHE_ROLLOUTS <= 0 or B == 0:
-        return rollout_poses_host(sim, mass, friction, n_steps, fields, velocity)
+        return rollout_poses_host(sim, mass, friction, n_steps, fields, velocity, offset)
     names = sorted(fields or {})
-    parts = [mass, friction] + [fields[k] for k in names] + ([velocity] if velocity is not None else [])
+    parts = [mass, friction] + [fields[k] for k in names] + ([velocity] if velocity is not None else []) + \
+        ([offset] if offset is not None else [])
     rows = np.concatenate([np.asarray(a, np.float64).reshape(B, -1) for a in parts], axis=1)
-    model = (id(sim.mj_model), int(n_steps), tuple(names), velocity is not None)
+    model = (id(sim.mj_model), int(n_steps), tuple(names), velocity is not None, offset is not None)
     keys = [model + (rows[b].tobytes(),) for b in range(B)]
     with _CACHE_LOCK:
         if id(sim.mj_model) not in _CACHE_MODELS:
@@ -181,7 +189,7 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
     if todo:
         idx = np.fromiter(todo.values(), int, len(todo))
         new = rollout_poses_host(sim, mass[idx], friction[idx], n_steps, {k: fields[k][idx] for k in names},
-                                 None if velocity is None else velocity[idx])
+                                 None if velocity is None else velocity[idx], None if offset is None else offset[idx])
         fresh = {k: new[i].copy() for i, k in enumerate(todo)}
         with _CACHE_LOCK:
             _CACHE.update(fresh)
@@ -191,7 +199,8 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
 
 
 def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, fields: dict | None = None,
-                  velocity: jax.Array | None = None, live_steps: jax.Array | None = None) -> jax.Array:
+                  velocity: jax.Array | None = None, live_steps: jax.Array | None = None,
+                  offset: jax.Array | None = None) -> jax.Array:
     """:func:`rollout_poses_host` as a ``jax.pure_callback`` for one rollout (vmap batches it).
 
     Args:
@@ -205,6 +214,7 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
             The poses up to there are the same; the steps after them cost nothing. This keeps
             the output's static shape, so videos whose fit windows end at different times
             share one compiled program.
+        offset: optional (n_objects, 3) shifts (m) of the start positions.
         Extra leading (vmapped) axes of any input reach the host as one batch.
 
     Returns:
@@ -217,12 +227,15 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
     inputs += [jnp.asarray(fields[k], jnp.float64) for k in names]
     if velocity is not None:
         inputs.append(jnp.asarray(velocity, jnp.float64))
+    if offset is not None:
+        inputs.append(jnp.asarray(offset, jnp.float64))
     live = live_steps is not None
     if live:
         inputs.append(jnp.asarray(live_steps, jnp.float64))
     # each input's own shape, without the leading axes vmap adds (known here, before vmap)
     own = [np.shape(mass)[-1:], np.shape(friction)[-1:]] + [getattr(sim.mj_model, k).shape for k in names]
     own += [(n, 3)] if velocity is not None else []
+    own += [(n, 3)] if offset is not None else []
     own += [()] if live else []
 
     def host(*arrays):
@@ -232,8 +245,10 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
         steps = n_steps
         if live and flat[-1].size:
             steps = int(np.clip(np.max(flat[-1]), 1, n_steps))
-        poses = cached_rollout_poses(sim, flat[0], flat[1], steps, dict(zip(names, flat[2:2 + len(names)])),
-                                     flat[2 + len(names)] if velocity is not None else None)
+        extra = iter(flat[2 + len(names):])
+        vel = next(extra) if velocity is not None else None
+        off = next(extra) if offset is not None else None
+        poses = cached_rollout_poses(sim, flat[0], flat[1], steps, dict(zip(names, flat[2:2 + len(names)])), vel, off)
         if steps < n_steps:  # hold the last pose (module docstring: only the live steps are used)
             poses = np.concatenate([poses, np.repeat(poses[:, -1:], n_steps - steps, axis=1)], axis=1)
         return poses.reshape(lead + (n_steps + 1, n, 3))
