@@ -319,10 +319,7 @@ def main(argv=None) -> int:
             refit = args.rerun and (not only or (method, family) in only)
             if refit and args.keep_since and path.exists():  # ISO strings of one form sort as times
                 refit = json.loads(path.read_text()).get("fitted_utc", "") < args.keep_since
-            if path.exists() and not refit:
-                records.append(json.loads(path.read_text()))
-                continue
-            if families and family not in families:
+            if (path.exists() and not refit) or (families and family not in families):
                 if path.exists():
                     records.append(json.loads(path.read_text()))
                 continue

@@ -70,6 +70,10 @@ class CNNConfig(_Strict):
     local_screen: float = Field(0.05, gt=0, le=1)
 
 
+#: Most rollouts a fit's ensemble averages (``likelihood.ensemble``, ``fit --ensemble``).
+MAX_ENSEMBLE = 64
+
+
 class LikelihoodConfig(_Strict):
     """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise.
     ``ensemble``: each simulated profile is the mean of this many rollouts whose start is
@@ -80,7 +84,7 @@ class LikelihoodConfig(_Strict):
 
     kind: str = DEFAULT_KIND
     sd_model: float = Field(DEFAULT_SD_MODEL, ge=0)
-    ensemble: int = Field(1, ge=1, le=64)
+    ensemble: int = Field(1, ge=1, le=MAX_ENSEMBLE)
 
 
 class PredictionConfig(_Strict):

@@ -103,8 +103,12 @@ def _settings(args) -> "FitConfig":  # noqa: F821
                         ("--ensemble", args.ensemble)):
         if value is not None and value < 1:
             raise GalileoError(f"{name} must be a positive integer, got {value}")
-    if args.ensemble is not None and args.ensemble > 64:
-        raise GalileoError(f"--ensemble must be at most 64 (each rollout becomes that many), got {args.ensemble}")
+    if args.ensemble is not None:
+        from galileo_jax.config import MAX_ENSEMBLE
+
+        if args.ensemble > MAX_ENSEMBLE:
+            raise GalileoError(f"--ensemble must be at most {MAX_ENSEMBLE} (each rollout becomes that many), "
+                               f"got {args.ensemble}")
     if args.warmup is not None and args.warmup < 0:
         raise GalileoError(f"--warmup must be >= 0, got {args.warmup}")
     return cfg

@@ -299,6 +299,7 @@ def get_engine(scene: Scene, fps: float, effects: tuple, seconds: float, max_bat
     simulation ``engine`` ("mjx" or "mujoco", see :func:`~galileo_jax.physics.simulate.make_simulator`),
     each the mean of ``ensemble`` rollouts (:func:`~galileo_jax.physics.simulate.ensemble_offsets`)."""
     length = _blocks(seconds + release_margin(scene), fps)  # an earlier release runs longer
+    # K = 1 leaves the key as it was: the compiled programs of plain fits (persistent cache) stay valid
     settings = (float(fps), tuple(effects), int(max_batch), engine) + ((int(ensemble),) if ensemble != 1 else ())
     scene_id = ("scene", scene_key(scene), float(scene.camera.scale_tolerance or 0.0))
     own = scene_id + settings + (length,)

@@ -391,17 +391,16 @@ def _scan_steps(sim: Simulator, step, data0, n_steps: int, live_steps):
     return jax.lax.scan(live_step, data0, jnp.arange(n_steps))
 
 
-def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_steps: int,
-                     live_steps=None, data0=None) -> Trajectory:
+def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_steps: int, live_steps,
+                     data0: mjx.Data) -> Trajectory:
     """:func:`rollout` with the simulator's effects (kept apart so the base model's program is
-    unchanged), from ``data0`` (default ``sim.data0``)."""
+    unchanged), from ``data0``."""
     effects, ctx, index = sim.effects, sim.ctx, sim.index
     values = params.effects if params.effects is not None else jnp.asarray(neutral_values(effects), jnp.float64)
     vals = split_values(effects, values)
     updates = model_updates(effects, vals, model, ctx)
     if updates:
         model = model.replace(**updates)
-    data0 = sim.data0 if data0 is None else data0
     v0 = initial_velocity(effects, vals, ctx)
     qvel = data0.qvel
     for i, d in enumerate(index.dof):
