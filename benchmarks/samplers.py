@@ -116,13 +116,13 @@ def fit_config(s: dict):
     return cfg
 
 
-def problem_for(scene, obs, cfg):
-    """The fit's :class:`Problem` as ``fit`` builds it (its simulation engine too)."""
+def problem_for(scene, obs, cfg, method: str = "grad"):
+    """The :class:`Problem` of a fit by ``method`` as ``fit`` builds it (its simulation engine
+    and its rollout ensemble, :func:`~galileo_jax.config.ensemble_for`, too)."""
     from galileo_jax.inference import Problem
-    from galileo_jax.pipeline import fit_engine
+    from galileo_jax.pipeline import problem_options
 
-    return Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
-                   engine=fit_engine(scene, cfg))
+    return Problem(scene, obs, **problem_options(scene, cfg, method))
 
 
 # --------------------------------------------------------------------------- videos
@@ -195,6 +195,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
     the compilation run (mh and the seed's sampler shortened; same compiled programs)."""
     import jax
 
+    from galileo_jax.config import ensemble_for
     from galileo_jax.inference import fit_grad, run_mh, run_seed_mh, summarize_mh
     from galileo_jax.inference import cnn
     from galileo_jax.inference import cnn_files
@@ -247,12 +248,13 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
     if want("mh", "mh (best draw)"):
         n_warmup, n_samples = (40, 20) if warm else (s["mh_warmup"], s["mh_samples"])  # 2 chunks: annealing compiles
         t = time.perf_counter()
-        res = run_mh(problem, keys["mh"], n_chains=s["mh_chains"], n_warmup=n_warmup, n_samples=n_samples,
-                     progress=False)
+        res = run_mh(problem_for(scene, obs, cfg, "mh"), keys["mh"], n_chains=s["mh_chains"], n_warmup=n_warmup,
+                     n_samples=n_samples, progress=False)
         elapsed = time.perf_counter() - t
         summ = summarize_mh(res, space)
         par, diag = summ["parameters"], summ["diagnostics"]
-        common = {"time_s": elapsed, "simulations": mh_rollouts(s["mh_chains"], n_warmup, n_samples),
+        common = {"time_s": elapsed, "simulations": ensemble_for(cfg, "mh") * mh_rollouts(s["mh_chains"], n_warmup,
+                                                                                       n_samples),
                   "max_rhat": diag["max_rhat"], "min_ess_bulk": diag["min_ess_bulk"],
                   "ess_per_s": diag["min_ess_bulk"] / elapsed, "acceptance": diag["acceptance"]}
         done("mh", {**evaluate([par[n]["median"] for n in space.names]), **common,

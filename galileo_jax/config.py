@@ -74,17 +74,38 @@ class CNNConfig(_Strict):
 MAX_ENSEMBLE = 64
 
 
+#: mh's rollout ensemble where the settings name none (:func:`ensemble_for`). Measured
+#: (``benchmarks/results/mh_mixing.md``: the five videos where mh mixed worst, fit's other mh
+#: settings): worst R-hat per video 1.54 / 1.19 / 1.19 / 1.32 / 1.17 -> 1.12 / 1.07 / 1.07 /
+#: 1.08 / 1.07 with 4, smallest bulk ESS (median) 64 -> 155, at about 3.5x the time (median
+#: ESS per second about the same, 1.4); with 2: 1.21 / 1.14 / 1.07 / 1.18 / 1.17; with 8 no
+#: better than with 4 at twice its time. On the samplers benchmark's 10 easier videos it costs
+#: ESS per second (``benchmarks/results/samplers.md``: 1.44 against 5.12 recorded by an earlier
+#: version without it) for a worst R-hat of 1.14 instead of 1.53.
+MH_ENSEMBLE = 4
+
+
 class LikelihoodConfig(_Strict):
     """Likelihood kind and the model-error floor (m/s) added in quadrature to the noise.
     ``ensemble``: each simulated profile is the mean of this many rollouts whose start is
     shifted by fractions of a physics step's travel
     (:func:`galileo_jax.physics.simulate.ensemble_offsets`), which smooths the likelihood's
     pseudo-random response to where in a step the impact falls; it costs that many times the
-    rollouts (1: off; 8 measured on held-out world_41, ``docs/measurements.md``)."""
+    rollouts. None (default): the method's own, :func:`ensemble_for` (mh 4, the others 1: off)."""
 
     kind: str = DEFAULT_KIND
     sd_model: float = Field(DEFAULT_SD_MODEL, ge=0)
-    ensemble: int = Field(1, ge=1, le=MAX_ENSEMBLE)
+    ensemble: int | None = Field(None, ge=1, le=MAX_ENSEMBLE)
+
+
+def ensemble_for(cfg: "FitConfig", method: str) -> int:
+    """Rollouts per simulated profile of a fit by ``method``: ``likelihood.ensemble`` where the
+    settings give one, else :data:`MH_ENSEMBLE` for mh (a random walk needs the smoother
+    likelihood to mix) and 1 for the others (grad's coverage with 8, measured on one family
+    only, ``benchmarks/results/coverage.md``, does not yet justify 3-4x its time)."""
+    if cfg.likelihood.ensemble is not None:
+        return int(cfg.likelihood.ensemble)
+    return MH_ENSEMBLE if method == "mh" else 1
 
 
 class PredictionConfig(_Strict):

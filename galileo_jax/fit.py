@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--likelihood", help="likelihood kind: gaussian_iid (default), gaussian_ma1, seed_gaussian, emd, rms")
     p.add_argument("--ensemble", type=int, metavar="K",
                    help="each simulated profile the mean of K rollouts from starts shifted within one physics "
-                        "step (smooths the likelihood at collisions; K times the rollouts; default 1: off)")
+                        "step (smooths the likelihood at collisions; K times the rollouts; default: 4 for mh, "
+                        "1 (off) for the other methods)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from galileo_jax.criticism.adequacy import adequacy as fit_adequacy
-from galileo_jax.config import FitConfig
+from galileo_jax.config import FitConfig, ensemble_for
 from galileo_jax.errors import GalileoError
 from galileo_jax.fit_report import FitReport, JointFitReport, Posterior
 from galileo_jax.inference.problem import Problem
@@ -304,10 +304,11 @@ def scene_for_fit(scene: Scene, cfg: FitConfig, method: str = "grad", init: str 
     return scene.with_scale_tolerance(cfg.scale_tolerance)
 
 
-def problem_options(scene: Scene, cfg: FitConfig) -> dict:
-    """:class:`Problem`'s likelihood, sd_model, ensemble, effects and engine for a fit of ``scene`` with ``cfg``."""
+def problem_options(scene: Scene, cfg: FitConfig, method: str) -> dict:
+    """:class:`Problem`'s likelihood, sd_model, ensemble (:func:`~galileo_jax.config.ensemble_for`
+    ``method``), effects and engine for a fit of ``scene`` with ``cfg``."""
     return dict(likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model, effects=cfg.effects,
-                engine=fit_engine(scene, cfg), ensemble=cfg.likelihood.ensemble)
+                engine=fit_engine(scene, cfg), ensemble=ensemble_for(cfg, method))
 
 
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
@@ -334,7 +335,7 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     t = time.perf_counter()
     scene = scene_for_fit(scene, cfg, method, init)
     try:
-        problem = Problem(scene, tracked.observation, **problem_options(scene, cfg))
+        problem = Problem(scene, tracked.observation, **problem_options(scene, cfg, method))
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
@@ -427,7 +428,7 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
         t = time.perf_counter()
         try:
             problems = batch_problems(scene, [tracked[j].observation for j in members],
-                                      **problem_options(scene, cfg))
+                                      **problem_options(scene, cfg, "grad"))
             fits = fit_grad_batch(problems, k_run, **grad_options(cfg))
             from galileo_jax.inference.grad import after_lm
 
@@ -479,7 +480,7 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
     t = time.perf_counter()
     try:
         scenes = [scene_for_fit(s, cfg, method) for _, s in inputs]
-        problems = [Problem(s, o, **problem_options(s, cfg)) for s, o in zip(scenes, observations)]
+        problems = [Problem(s, o, **problem_options(s, cfg, method)) for s, o in zip(scenes, observations)]
         joint = JointProblem(problems, per_video)
     except ValueError as err:
         raise GalileoError(str(err)) from None

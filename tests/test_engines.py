@@ -8,6 +8,8 @@ max 0.027 m/s over 64 draws of one seed; median 0.0043 m/s, max 0.018 m/s over t
 the tracker's noise is 0.003-0.008 m/s; benchmarks/results/engines.md gives positions).
 """
 
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -94,9 +96,10 @@ def test_c_engine_simulates_a_repeated_rollout_once(monkeypatch):
     assert ran == [3] and np.array_equal(again, fresh[[2, 0]])
     other = simulate_c.cached_rollout_poses(sim, mass[:1], friction[:1] + 0.01, n)  # new inputs: simulated
     assert ran == [3, 1] and not np.array_equal(other[0], fresh[0])
-    monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)  # off: every row simulated
-    simulate_c.cached_rollout_poses(sim, mass[rows], friction[rows], n)
-    assert ran == [3, 1, 5]
+    monkeypatch.setattr(simulate_c, "CACHE_ROLLOUTS", 0)  # off: nothing remembered, each distinct row once
+    for _ in range(2):
+        again = simulate_c.cached_rollout_poses(sim, mass[rows], friction[rows], n)
+    assert ran == [3, 1, 3, 3] and np.array_equal(again, fresh[rows])
 
 
 def test_c_engine_simulates_only_the_fit_window_and_the_whole_video_for_reports(monkeypatch):
@@ -125,8 +128,9 @@ def test_c_engine_simulates_only_the_fit_window_and_the_whole_video_for_reports(
     z = c.space.to_unconstrained(theta)
     ll = np.asarray(c.log_likelihood(z))
     assert ran == [live]
-    f = c.jitted("log_likelihood", None)  # the same program on whole rollouts
-    assert np.array_equal(ll, np.asarray(f(z, c.whole_data))) and ran[-1] == c.n_steps
+    f = c.jitted("log_likelihood", None)  # the same program on whole rollouts, the batch padded as
+    padded = np.concatenate([np.asarray(z), np.repeat(np.asarray(z)[-1:], c.max_batch - 2, axis=0)])
+    assert np.array_equal(ll, np.asarray(f(jnp.asarray(padded), c.whole_data))[:2]) and ran[-1] == c.n_steps
     simulate_c.clear_rollout_cache()
     whole = np.asarray(c.simulate(theta[0]))
     assert ran[-1] == c.n_steps and whole.shape == (4, 59)
@@ -147,6 +151,21 @@ def test_engine_choice():
         make_simulator(SCENE, 30.0, drag, "mujoco")
     with pytest.raises(GalileoError, match="unknown engine"):
         make_simulator(SCENE, 30.0, (), "bullet")
+
+
+def test_each_method_gets_its_own_ensemble_unless_the_settings_name_one():
+    """mh smooths its likelihood with a rollout ensemble by default (a random walk mixes badly on
+    the rough one), grad and the others do not; ``likelihood.ensemble`` (``fit --ensemble``)
+    overrides both; the shipped settings file leaves it to the method."""
+    from galileo_jax.config import MH_ENSEMBLE, ensemble_for, load_config
+
+    assert MH_ENSEMBLE > 1
+    for cfg in (FitConfig(), load_config(Path(__file__).resolve().parents[1] / "configs" / "fit.yaml")):
+        assert [ensemble_for(cfg, m) for m in ("mh", "grad", "cnn", "seed")] == [MH_ENSEMBLE, 1, 1, 1]
+    cfg = FitConfig.model_validate({"likelihood": {"ensemble": 2}})
+    assert ensemble_for(cfg, "mh") == ensemble_for(cfg, "grad") == 2
+    with pytest.raises(ValueError):
+        FitConfig.model_validate({"likelihood": {"ensemble": 0}})
 
 
 def test_c_engine_with_effects_set_once():

@@ -191,6 +191,27 @@ def test_grad_runs_more_starts_than_a_chunk_in_chunks(problem, monkeypatch):
         grad.solve_starts(solver, jnp.zeros((3, 3)), c_problem.data, chunk=0)
 
 
+def test_c_engine_batches_of_every_size_run_one_compiled_program(problem):
+    """The C engine's programs hold a host callback, so JAX compiles them in every process: its
+    problems pad each batch to ``max_batch`` rows (copies of the last; the rollout cache
+    simulates them once), so that batches of every size run one program, with the values the
+    rows have alone. MJX problems do not pad (their programs are cached on disk)."""
+    c_problem = Problem(SCENE2, problem.observation, engine="mujoco")
+    assert c_problem.pads_batches and not problem.pads_batches
+    mb = c_problem.max_batch
+    z = np.random.default_rng(0).normal(0.0, 0.5, (mb + 3, c_problem.dim))
+    whole = np.asarray(c_problem.log_likelihood(z))
+    program = c_problem.jitted("log_likelihood", None)  # the cached jitted function
+    for b in (1, 3, mb):
+        np.testing.assert_array_equal(np.asarray(c_problem.log_likelihood(z[:b])), whole[:b])
+    np.testing.assert_array_equal(np.asarray(c_problem.log_likelihood(z[-1:])), whole[-1:])
+    assert whole.shape == (mb + 3,) and np.isfinite(whole).all() and program._cache_size() == 1
+    theta = np.asarray(c_problem.space.from_unconstrained(jnp.asarray(z[:2])))
+    sims = np.asarray(c_problem.simulate(theta))
+    np.testing.assert_array_equal(np.asarray(c_problem.simulate(theta[1])), sims[1])
+    assert np.isfinite(sims).all()
+
+
 @pytest.mark.slow
 def test_grad_with_held_parameters(problem):
     """fit_grad(fixed=...) fits only the free coordinates and reports the held one exactly."""

@@ -93,6 +93,14 @@ def test_a_skewed_profile_is_widened_where_flatter_and_matches_brute_force():
                 # extrapolated near it)
                 assert not np.isfinite(lower) and z[0] - chk.interval_z[0, 0] > 4 * Z90 * sd
             assert chk.loglik_gain < 1e-6
+        # padded (the C engine's way): every batch of held fits the first one's size, one
+        # compiled program where the plain check compiled one per batch size; the same check
+        padded = jax.jit(held_lm_solver(fd_jacobian_fn(res_exact, 0.05), 1e-10, 1e-10, 50))
+        chk_p = profile_check(padded, jnp.asarray(y), z, cost, cov, np.array([1.3, 1.0]), [0, 1],
+                              tolerance=tolerance, pad_batches=True)
+        assert padded._cache_size() == 1 < solve._cache_size()
+        np.testing.assert_array_equal(chk_p.interval_z, chk.interval_z)
+        assert chk_p.solves == chk.solves
 
 
 def test_a_rough_profile_ends_beyond_its_farthest_point_inside():

@@ -167,7 +167,14 @@ class GradResult(NamedTuple):
 MAX_LM_STARTS = 16
 
 
-def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None) -> tuple:
+#: On the C engine (``problem.pads_batches``) a call of S <= :data:`MAX_LM_STARTS` starts is
+#: padded to a multiple of this many (``fit``'s default number of starts): a refit from one
+#: point then runs the main fit's compiled program instead of compiling its own (about 1.5 s in
+#: every process: programs with host callbacks are never cached on disk).
+LM_PAD = 4
+
+
+def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None, pad_to: int = 1) -> tuple:
     """Run a jitted ``solve(z0s (S, d), data)`` (:func:`_lm_solver`) over all starts, at most
     ``chunk`` (default :data:`MAX_LM_STARTS`) per call.
 
@@ -175,7 +182,9 @@ def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None) -> tuple:
         solve: the jitted vmapped solver; its outputs all have the starts as leading axis.
         z0: (S, d) starting points in z.
         data: the problem's data pytree (passed through).
-        chunk: starts per call; S <= chunk runs as one call of shape (S, d).
+        chunk: starts per call; S <= chunk runs as one call of shape (S, d), padded with copies
+            of the last start to a multiple of ``pad_to`` (at most ``chunk``).
+        pad_to: see ``chunk`` (:data:`LM_PAD` where the problem pads its batches, else 1).
 
     Returns:
         ``solve``'s outputs for all S starts, in order (JAX arrays, as ``solve`` returns them).
@@ -188,7 +197,12 @@ def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None) -> tuple:
         raise ValueError(f"chunk must be >= 1, got {chunk}")
     n = int(z0.shape[0])
     if n <= chunk:
-        return solve(z0, data)
+        size = min(-(-n // max(int(pad_to), 1)) * max(int(pad_to), 1), chunk)
+        if size == n:
+            return solve(z0, data)
+        z0 = np.asarray(z0)
+        padded = np.concatenate([z0, np.repeat(z0[-1:], size - n, axis=0)])
+        return tuple(jnp.asarray(np.asarray(o)[:n]) for o in solve(jnp.asarray(padded), data))
     z0 = np.asarray(z0)
     parts = []
     for i in range(0, n, chunk):
@@ -329,7 +343,8 @@ def fit_grad(problem, key: jax.Array, *, n_starts: int = 4, n_screen: int = 256,
     z0 = space.to_unconstrained(theta0)
 
     solve = problem.jitted(("lm", jacobian, fd_step, rtol, atol, max_steps), _lm_solver(res_fn, rtol, atol, max_steps))
-    z_end, cost, steps, ok, codes = solve_starts(solve, z0, problem.data)  # chunked: MAX_LM_STARTS
+    z_end, cost, steps, ok, codes = solve_starts(solve, z0, problem.data,  # chunked: MAX_LM_STARTS
+                                                 pad_to=LM_PAD if problem.pads_batches else 1)
     cost = np.asarray(cost, np.float64)
     cost = np.where(np.isfinite(cost), cost, np.inf)
     best = int(np.argmin(cost))
@@ -449,7 +464,8 @@ def with_profile(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, 
         return res
     lm = (rtol, atol, min(int(max_steps), PROFILE_MAX_STEPS))
     solve = problem.jitted(("lm_held", fd_step) + lm, held_lm_solver(problem.residual_fn("fd", fd_step), *lm))
-    check = profile_check(solve, problem.data, res.z, res.cost, cov_gn, infl, coords)
+    check = profile_check(solve, problem.data, res.z, res.cost, cov_gn, infl, coords,
+                          pad_batches=problem.pads_batches)
     if check.loglik_gain > PROFILE_REFIT_GAIN and refits > 0:
         better = refit_from(res, problem, check.best_z, fd_step=fd_step, rtol=rtol, atol=atol, max_steps=max_steps)
         if better is not None:
@@ -482,7 +498,8 @@ def refit_from(res: GradResult, problem, z_start: np.ndarray, *, fd_step: float 
     space = problem.space
     res_fd = problem.residual_fn("fd", fd_step)
     solve = problem.jitted(("lm", "fd", fd_step, rtol, atol, max_steps), _lm_solver(res_fd, rtol, atol, max_steps))
-    z_end, cost, steps, ok, codes = solve_starts(solve, jnp.asarray(z_start, jnp.float64)[None], problem.data)
+    z_end, cost, steps, ok, codes = solve_starts(solve, jnp.asarray(z_start, jnp.float64)[None], problem.data,
+                                                 pad_to=LM_PAD if problem.pads_batches else 1)
     cost = float(np.asarray(cost, np.float64)[0])
     if not (np.isfinite(cost) and cost < res.cost):
         return None
@@ -505,7 +522,9 @@ def _linearised(problem, z, fd_step: float) -> tuple[np.ndarray, np.ndarray, np.
     (R, d) (step ``fd_step``; one jitted program per problem structure) and its
     :func:`~galileo_jax.inference.covariance.gauss_newton_covariance` (d, d)."""
     jac_fn = problem.jitted(("residuals_jacobian_fd", fd_step), residual_jacobian(problem.residual_fn("fd", fd_step)))
-    r, jac = (np.asarray(a, np.float64) for a in jac_fn(jnp.asarray(z), problem.data))
+    # z as an uncommitted array always: a committed one (an earlier program's output) is another
+    # cache entry of the same program, compiled again (C engine: in every process)
+    r, jac = (np.asarray(a, np.float64) for a in jac_fn(jnp.asarray(np.asarray(z, np.float64)), problem.data))
     return r, jac, gauss_newton_covariance(jac)
 
 

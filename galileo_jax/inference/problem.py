@@ -373,17 +373,44 @@ class BatchedAPI:
         """
         return batched_log_density(self.space, self.loglik_fn, self.max_batch, zb, data)
 
+    @property
+    def pads_batches(self) -> bool:
+        """Whether batched calls are padded to a few fixed shapes (:meth:`in_chunks`): on the C
+        engine, whose programs hold a host callback, which JAX's persistent cache never stores
+        (each shape is compiled in every process: 0.1-2 s) and whose rollout cache simulates
+        padded copies once. MJX programs are cached on disk, and padding would cost rollouts."""
+        return self.simulator_engine == "mujoco"
+
+    def in_chunks(self, name: Hashable, fn: Callable, z, data=None) -> jax.Array:
+        """``fn(zb, data)`` ((B, d) -> (B, ...)) jitted, over the rows of ``z`` (B, d), with
+        ``data`` (default the problem's). Where :attr:`pads_batches`, in chunks of ``max_batch``
+        rows, the last padded with copies of its last row: one compiled program for every batch
+        size (measured on README command 1: eight sizes, 0.15-0.35 s of compilation each, in
+        every process). Returns (B, ...)."""
+        jitted = self.jitted(name, fn)
+        data = self.data if data is None else data
+        if not self.pads_batches:
+            return jitted(jnp.asarray(z, jnp.float64), data)
+        z = np.asarray(z, np.float64)
+        mb = self.max_batch
+        out = []
+        for i in range(0, z.shape[0], mb):
+            part = z[i:i + mb]
+            n = part.shape[0]
+            if n < mb:
+                part = np.concatenate([part, np.repeat(part[-1:], mb - n, axis=0)])
+            out.append(np.asarray(jitted(jnp.asarray(part), data))[:n])
+        return jnp.asarray(np.concatenate(out))
+
     def log_density(self, z: jax.Array) -> jax.Array:
-        """Jitted :meth:`log_density_fn` at this problem's data: (B, d) -> (B,)."""
+        """Jitted :meth:`log_density_fn` at this problem's data: (B, d) -> (B,) (:meth:`in_chunks`)."""
         space, f, mb = self.space, self.loglik_fn, self.max_batch
-        fn = self.jitted("log_density", lambda zb, data: batched_log_density(space, f, mb, zb, data))
-        return fn(jnp.asarray(z, jnp.float64), self.data)
+        return self.in_chunks("log_density", lambda zb, data: batched_log_density(space, f, mb, zb, data), z)
 
     def log_likelihood(self, z: jax.Array) -> jax.Array:
-        """Log-likelihood (or similarity) at unconstrained points, (B, d) -> (B,)."""
+        """Log-likelihood (or similarity) at unconstrained points, (B, d) -> (B,) (:meth:`in_chunks`)."""
         f, mb = self.loglik_fn, self.max_batch
-        fn = self.jitted("log_likelihood", lambda zb, data: map_batch(lambda z: f(z, data), zb, mb))
-        return fn(jnp.asarray(z, jnp.float64), self.data)
+        return self.in_chunks("log_likelihood", lambda zb, data: map_batch(lambda z: f(z, data), zb, mb), z)
 
 
 class Problem(BatchedAPI):
@@ -522,19 +549,19 @@ class Problem(BatchedAPI):
         if not self.likelihood.is_gaussian:
             raise ValueError(f"likelihood {self.likelihood.kind!r} has no residuals")
         eng = self.engine
-        fn = self.jitted("residuals", lambda tb, data: map_batch(
-            lambda t: data.likelihood.residuals(eng.profile_theta(t, data)), tb, eng.max_batch))
-        return fn(theta[None], self.data)[0] if theta.ndim == 1 else fn(theta, self.data)
+        out = self.in_chunks("residuals", lambda tb, data: map_batch(
+            lambda t: data.likelihood.residuals(eng.profile_theta(t, data)), tb, eng.max_batch),
+            theta.reshape(-1, theta.shape[-1]))
+        return out[0] if theta.ndim == 1 else out
 
     def simulate(self, theta: jax.Array) -> jax.Array:
         """Simulated profile over the WHOLE video at theta: (d,) -> (2n, N-1), or (B, d) -> (B, 2n, N-1), m/s."""
         theta = jnp.asarray(theta, jnp.float64)
         eng = self.engine
-        fn = self.jitted("simulate", lambda tb, data: map_batch(
-            lambda t: eng.profile_theta(t, data), tb, eng.max_batch))
-        whole = self.whole_data
-        out = fn(theta[None], whole)[0] if theta.ndim == 1 else fn(theta, whole)
-        return out[..., :self.n_samples]
+        out = self.in_chunks("simulate", lambda tb, data: map_batch(
+            lambda t: eng.profile_theta(t, data), tb, eng.max_batch),
+            theta.reshape(-1, theta.shape[-1]), self.whole_data)
+        return (out[0] if theta.ndim == 1 else out)[..., :self.n_samples]
 
     def poses(self, theta: jax.Array) -> np.ndarray:
         """(N, n_objects, 3) simulated poses (x m, z m, pitch rad) at the video's frame times."""

@@ -154,7 +154,7 @@ def held_lm_solver(res_fn: Callable, rtol: float, atol: float, max_steps: int) -
 
 def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov_gn: np.ndarray,
                   inflation: np.ndarray | None, coords, *, tolerance: float = PROFILE_TOLERANCE,
-                  rounds: int = PROFILE_ROUNDS) -> ProfileCheck:
+                  rounds: int = PROFILE_ROUNDS, pad_batches: bool = False) -> ProfileCheck:
     """Check each coordinate of ``coords`` of a least-squares fit against its profile
     likelihood (module docstring), searching the profile's 90% end where they disagree.
 
@@ -167,6 +167,10 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
         coords: indices of the coordinates to check (finite, positive variance).
         tolerance: :data:`PROFILE_TOLERANCE`.
         rounds: secant rounds after the first check.
+        pad_batches: pad every batch of held fits to the first one's size (copies of its first
+            fit), so that ``solve`` runs one compiled program: for the C engine, whose programs
+            JAX compiles in every process (about 2 s for each batch size; its rollout cache
+            simulates the copies once).
 
     Returns:
         :class:`ProfileCheck`.
@@ -198,7 +202,9 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
         v = z_hat[j] + sides * dists
         start = z_hat[None] + reg[:, j].T / reg[j, j][:, None] * (v - z_hat[j])[:, None]  # conditional mean
         start[np.arange(len(j)), j] = v
-        z, cost = (np.asarray(a, np.float64) for a in solve(jnp.asarray(start), jnp.asarray(j), jnp.asarray(v), data))
+        pad = np.r_[np.arange(len(j)), np.zeros(2 * m - len(j) if pad_batches else 0, int)]
+        z, cost = (np.asarray(a, np.float64)[:len(j)]
+                   for a in solve(jnp.asarray(start[pad]), jnp.asarray(j[pad]), jnp.asarray(v[pad]), data))
         n_solves += len(j)
         cost = np.where(np.isfinite(cost), cost, np.inf)
         i = int(np.argmin(cost))

@@ -110,9 +110,10 @@ def mixing_warning(parameters: dict) -> str | None:
     names = ", ".join(f"{n} {r:.2f}" for n, r in bad.items())
     return (f"warning: R-hat above {RHAT_LIMIT} ({names}): the chains have not mixed, so the intervals may be too "
             "narrow. The log-likelihood is rough around contact events (the simulated impact responds "
-            "pseudo-randomly to small parameter changes); raise mh.samples or mh.chains, or set simulation.substeps: 16 "
-            "in the scene file (a finer physics step halves that roughness, at twice the time), or compare with "
-            "--method grad")
+            "pseudo-randomly to small parameter changes); raise mh.samples or mh.chains, smooth it further with "
+            "--ensemble 8 (each simulated profile the mean of 8 rollouts; mh's default is 4), or set "
+            "simulation.substeps: 16 in the scene file (a finer physics step halves that roughness, at twice the "
+            "time), or compare with --method grad")
 
 
 #: Log-likelihood difference (nats) within which another Levenberg-Marquardt end point counts as

@@ -156,14 +156,15 @@ def clear_rollout_cache() -> None:
 def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: int, fields: dict | None = None,
                          velocity: np.ndarray | None = None, offset: np.ndarray | None = None) -> np.ndarray:
     """:func:`rollout_poses_host`, simulating only the rows (rollouts) whose exact inputs it has not
-    simulated recently (:data:`CACHE_ROLLOUTS`), each distinct row once: the same poses, since a
-    rollout is a deterministic function of its inputs. Thread-safe (XLA may run callbacks
-    concurrently).
+    simulated recently (:data:`CACHE_ROLLOUTS`; 0: none remembered), each distinct row of the
+    batch once (batches padded with copies, :meth:`~galileo_jax.inference.problem.BatchedAPI.in_chunks`,
+    cost no rollouts): the same poses, since a rollout is a deterministic function of its
+    inputs. Thread-safe (XLA may run callbacks concurrently).
 
     Args and returns: as :func:`rollout_poses_host`.
     """
     B = mass.shape[0]
-    if CACHE_ROLLOUTS <= 0 or B == 0:
+    if B == 0:
         return rollout_poses_host(sim, mass, friction, n_steps, fields, velocity, offset)
     names = sorted(fields or {})
     parts = [mass, friction] + [fields[k] for k in names] + ([velocity] if velocity is not None else []) + \
@@ -171,13 +172,16 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
     rows = np.concatenate([np.asarray(a, np.float64).reshape(B, -1) for a in parts], axis=1)
     model = (id(sim.mj_model), int(n_steps), tuple(names), velocity is not None, offset is not None)
     keys = [model + (rows[b].tobytes(),) for b in range(B)]
+    remember = CACHE_ROLLOUTS > 0
+    found = [None] * B
     with _CACHE_LOCK:
-        if id(sim.mj_model) not in _CACHE_MODELS:
+        if remember and id(sim.mj_model) not in _CACHE_MODELS:
             if len(_CACHE_MODELS) >= 16:  # a long session of many scenes: start afresh
                 _CACHE.clear()
                 _CACHE_MODELS.clear()
             _CACHE_MODELS[id(sim.mj_model)] = sim.mj_model
-        found = [_CACHE.get(k) for k in keys]
+        if remember:
+            found = [_CACHE.get(k) for k in keys]
         for k, f in zip(keys, found):
             if f is not None:
                 _CACHE.move_to_end(k)
@@ -191,10 +195,11 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
         new = rollout_poses_host(sim, mass[idx], friction[idx], n_steps, {k: fields[k][idx] for k in names},
                                  None if velocity is None else velocity[idx], None if offset is None else offset[idx])
         fresh = {k: new[i].copy() for i, k in enumerate(todo)}
-        with _CACHE_LOCK:
-            _CACHE.update(fresh)
-            while len(_CACHE) > CACHE_ROLLOUTS:
-                _CACHE.popitem(last=False)
+        if remember:
+            with _CACHE_LOCK:
+                _CACHE.update(fresh)
+                while len(_CACHE) > CACHE_ROLLOUTS:
+                    _CACHE.popitem(last=False)
     return np.stack([f if f is not None else fresh[k] for k, f in zip(keys, found)])
 
 
