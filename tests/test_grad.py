@@ -206,6 +206,7 @@ def test_c_engine_batches_of_every_size_run_one_compiled_program(problem):
         np.testing.assert_array_equal(np.asarray(c_problem.log_likelihood(z[:b])), whole[:b])
     np.testing.assert_array_equal(np.asarray(c_problem.log_likelihood(z[-1:])), whole[-1:])
     assert whole.shape == (mb + 3,) and np.isfinite(whole).all() and program._cache_size() == 1
+    assert np.asarray(c_problem.log_likelihood(z[:0])).shape == (0,)
     theta = np.asarray(c_problem.space.from_unconstrained(jnp.asarray(z[:2])))
     sims = np.asarray(c_problem.simulate(theta))
     np.testing.assert_array_equal(np.asarray(c_problem.simulate(theta[1])), sims[1])
@@ -414,6 +415,7 @@ class _Curve(NamedTuple):
     data: jax.Array
     likelihood: SimpleNamespace
     static_key: tuple = ("test_curve",)
+    pads_batches: bool = False  # no host callback: its programs are cached like MJX's
 
     @staticmethod
     def residuals(z, y):

@@ -392,6 +392,8 @@ class BatchedAPI:
         if not self.pads_batches:
             return jitted(jnp.asarray(z, jnp.float64), data)
         z = np.asarray(z, np.float64)
+        if z.shape[0] == 0:
+            return jitted(jnp.asarray(z), data)
         mb = self.max_batch
         out = []
         for i in range(0, z.shape[0], mb):
