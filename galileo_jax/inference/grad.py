@@ -93,7 +93,7 @@ import optimistix as optx
 
 from galileo_jax.inference.covariance import Z90, gauss_newton_covariance, widened
 from galileo_jax.inference.polish import polish
-from galileo_jax.inference.problem import DEFAULT_FD_STEP
+from galileo_jax.inference.problem import DEFAULT_FD_STEP, pad_rows
 from galileo_jax.inference.starts import diverse_best, latin_hypercube_starts, start_point, unit_box
 
 
@@ -200,17 +200,12 @@ def solve_starts(solve, z0: jax.Array, data, chunk: int | None = None, pad_to: i
         size = min(-(-n // max(int(pad_to), 1)) * max(int(pad_to), 1), chunk)
         if size == n:
             return solve(z0, data)
-        z0 = np.asarray(z0)
-        padded = np.concatenate([z0, np.repeat(z0[-1:], size - n, axis=0)])
-        return tuple(jnp.asarray(np.asarray(o)[:n]) for o in solve(jnp.asarray(padded), data))
+        return tuple(jnp.asarray(np.asarray(o)[:n]) for o in solve(jnp.asarray(pad_rows(z0, size)), data))
     z0 = np.asarray(z0)
     parts = []
     for i in range(0, n, chunk):
-        zc = z0[i:i + chunk]
-        pad = chunk - zc.shape[0]
-        if pad:  # copies of the last start: same shape, same compiled program
-            zc = np.concatenate([zc, np.repeat(zc[-1:], pad, axis=0)])
-        parts.append([np.asarray(o)[:chunk - pad] for o in solve(jnp.asarray(zc), data)])
+        zc = z0[i:i + chunk]  # padded with copies of the last start: same shape, same compiled program
+        parts.append([np.asarray(o)[:zc.shape[0]] for o in solve(jnp.asarray(pad_rows(zc, chunk)), data)])
     return tuple(jnp.asarray(np.concatenate(p)) for p in zip(*parts))
 
 

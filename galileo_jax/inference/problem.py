@@ -118,6 +118,13 @@ def fd_jacobian_fn(f: Callable[..., jax.Array], step: float) -> Callable[..., ja
     return g
 
 
+def pad_rows(x: np.ndarray, size: int) -> np.ndarray:
+    """``x`` (n, ...) with copies of its last row appended up to ``size`` rows (>= n): a batch
+    of a fixed shape, so one compiled program serves every n; the copies' outputs are dropped."""
+    x = np.asarray(x)
+    return np.concatenate([x, np.repeat(x[-1:], size - x.shape[0], axis=0)]) if size > x.shape[0] else x
+
+
 def map_batch(f: Callable, xs, max_batch: int):
     """Apply unbatched ``f`` over the leading axis of the pytree ``xs``: vmap, or lax.map with
     batch_size ``max_batch`` for bigger batches (pure; use inside jit)."""
@@ -398,10 +405,7 @@ class BatchedAPI:
         out = []
         for i in range(0, z.shape[0], mb):
             part = z[i:i + mb]
-            n = part.shape[0]
-            if n < mb:
-                part = np.concatenate([part, np.repeat(part[-1:], mb - n, axis=0)])
-            out.append(np.asarray(jitted(jnp.asarray(part), data))[:n])
+            out.append(np.asarray(jitted(jnp.asarray(pad_rows(part, mb)), data))[:part.shape[0]])
         return jnp.asarray(np.concatenate(out))
 
     def log_density(self, z: jax.Array) -> jax.Array:

@@ -49,6 +49,7 @@ import optimistix as optx
 
 from galileo_jax.inference.covariance import Z90
 from galileo_jax.inference.grad import lm_no_worse
+from galileo_jax.inference.problem import pad_rows
 
 #: A side of an interval is searched where the profile's root deviance at its Gauss-Newton end
 #: is below 1.645 / this factor (the interval is then more than ~1.5x too narrow there); a
@@ -167,7 +168,7 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
         coords: indices of the coordinates to check (finite, positive variance).
         tolerance: :data:`PROFILE_TOLERANCE`.
         rounds: secant rounds after the first check.
-        pad_batches: pad every batch of held fits to the first one's size (copies of its first
+        pad_batches: pad every batch of held fits to the first one's size (copies of its last
             fit), so that ``solve`` runs one compiled program: for the C engine, whose programs
             JAX compiles in every process (about 2 s for each batch size; its rollout cache
             simulates the copies once).
@@ -202,7 +203,7 @@ def profile_check(solve: Callable, data, z_hat: np.ndarray, cost_hat: float, cov
         v = z_hat[j] + sides * dists
         start = z_hat[None] + reg[:, j].T / reg[j, j][:, None] * (v - z_hat[j])[:, None]  # conditional mean
         start[np.arange(len(j)), j] = v
-        pad = np.r_[np.arange(len(j)), np.zeros(2 * m - len(j) if pad_batches else 0, int)]
+        pad = pad_rows(np.arange(len(j)), 2 * m if pad_batches else len(j))
         z, cost = (np.asarray(a, np.float64)[:len(j)]
                    for a in solve(jnp.asarray(start[pad]), jnp.asarray(j[pad]), jnp.asarray(v[pad]), data))
         n_solves += len(j)
