@@ -66,10 +66,10 @@ def run_video(video: str, variants: list[str], done: set) -> list[dict]:
     """Records of ``variants`` on one video (skipping those in ``done``)."""
     import jax
 
-    from galileo_jax.config import FitConfig, resolve_engine
+    from galileo_jax.config import FitConfig
     from galileo_jax.inference import Problem, cnn, run_mh, summarize_mh
     from galileo_jax.observe import observe
-    from galileo_jax.pipeline import mh_start_from_cnn
+    from galileo_jax.pipeline import mh_start_from_cnn, problem_options
     from galileo_jax.scene import load_scene
 
     path = RESULTS / video
@@ -84,9 +84,8 @@ def run_video(video: str, variants: list[str], done: set) -> list[dict]:
             continue
         kw = dict(VARIANTS[name])
         k = kw.pop("ensemble", 1)
-        if k not in problems:
-            problems[k] = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
-                                  engine=resolve_engine(cfg), ensemble=k)
+        if k not in problems:  # as fit builds mh's problem, with this variant's ensemble
+            problems[k] = Problem(scene, obs, **{**problem_options(scene, cfg, "mh"), "ensemble": k})
         problem = problems[k]
         if kw.pop("init_cnn", False):
             est = cnn.estimate(cnn.find_model(scene, obs.fps), obs, problem.space, jax.random.PRNGKey(0))
@@ -118,7 +117,9 @@ def write_tables(records: list[dict]) -> str:
              "Command: `python benchmarks/mh_mixing.py` (module docstring). 16 chains, 400 kept steps, warm-up 300 "
              "unless named; same PRNG key for every variant. max R-hat, min ESS: over k1, k2, phi (ArviZ rank-normalised "
              "split R-hat, bulk ESS). ESS/s: min ESS / wall time, per video (times measured with other work on this 2-core "
-             "machine now and then: rough). Each row as recorded: 'jump 0.5' and the ensembles ran on the same code, the other rows on earlier versions (tracker and likelihood changed since). Errors: |posterior median - truth|, mean over videos. cover90: share of (video, "
+             "machine now and then: rough). Each row as recorded: 'jump 0.5' and the ensembles ran on the same code, "
+             "the other rows on earlier versions (tracker and likelihood changed since). Errors: |posterior median - "
+             "truth|, mean over videos. cover90: share of (video, "
              "parameter) pairs whose truth is in the 90% interval.", "",
              "| variant | max R-hat per video | videos with R-hat <= 1.1 | median min ESS | median ESS/s | k1 | k2 | phi | "
              "cover90 | median time (s) |",

@@ -174,17 +174,17 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
     keys = [model + (rows[b].tobytes(),) for b in range(B)]
     remember = CACHE_ROLLOUTS > 0
     found = [None] * B
-    with _CACHE_LOCK:
-        if remember and id(sim.mj_model) not in _CACHE_MODELS:
-            if len(_CACHE_MODELS) >= 16:  # a long session of many scenes: start afresh
-                _CACHE.clear()
-                _CACHE_MODELS.clear()
-            _CACHE_MODELS[id(sim.mj_model)] = sim.mj_model
-        if remember:
+    if remember:
+        with _CACHE_LOCK:
+            if id(sim.mj_model) not in _CACHE_MODELS:
+                if len(_CACHE_MODELS) >= 16:  # a long session of many scenes: start afresh
+                    _CACHE.clear()
+                    _CACHE_MODELS.clear()
+                _CACHE_MODELS[id(sim.mj_model)] = sim.mj_model
             found = [_CACHE.get(k) for k in keys]
-        for k, f in zip(keys, found):
-            if f is not None:
-                _CACHE.move_to_end(k)
+            for k, f in zip(keys, found):
+                if f is not None:
+                    _CACHE.move_to_end(k)
     todo: dict[tuple, int] = {}
     for b, (k, f) in enumerate(zip(keys, found)):
         if f is None and k not in todo:
