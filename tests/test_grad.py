@@ -195,7 +195,7 @@ def test_c_engine_batches_of_every_size_run_one_compiled_program(problem):
     """The C engine's programs hold a host callback, so JAX compiles them in every process: its
     problems pad each batch to ``max_batch`` rows (copies of the last; the rollout cache
     simulates them once), so that batches of every size run one program, with the values the
-    rows have alone. MJX problems do not pad (their programs are cached on disk)."""
+    rows have alone. MJX problems pad less (the next test)."""
     c_problem = Problem(SCENE2, problem.observation, engine="mujoco")
     assert c_problem.pads_batches and not problem.pads_batches
     mb = c_problem.max_batch
@@ -211,6 +211,24 @@ def test_c_engine_batches_of_every_size_run_one_compiled_program(problem):
     sims = np.asarray(c_problem.simulate(theta))
     np.testing.assert_array_equal(np.asarray(c_problem.simulate(theta[1])), sims[1])
     assert np.isfinite(sims).all()
+
+
+def test_mjx_batches_run_as_powers_of_two_with_the_values_rows_have_alone(problem):
+    """MJX problems pad a batch to the next power of two (at most ``max_batch``) and run bigger
+    ones in chunks of ``max_batch``: a few compiled programs (6-10 s each on a CPU) serve every
+    batch size, and each row's value is the one it has in any other batch."""
+    mb = problem.max_batch
+    assert not problem.pads_batches
+    assert [problem.batch_size(n) for n in (1, 2, 3, 4, 5, mb - 1, mb)] == \
+        [1, 2, 4, 4, 8, min(mb, 1 << (mb - 2).bit_length()), mb]
+    z = np.random.default_rng(1).normal(0.0, 0.5, (4, problem.dim))
+    four = np.asarray(problem.log_likelihood(z))
+    program = problem.jitted("log_likelihood", None)  # the cached jitted function
+    before = program._cache_size()
+    three = np.asarray(problem.log_likelihood(z[:3]))
+    assert program._cache_size() == before  # a batch of 3 runs the program of 4
+    np.testing.assert_allclose(three, four[:3], rtol=1e-12)
+    assert three.shape == (3,) and np.isfinite(four).all()
 
 
 @pytest.mark.slow

@@ -273,8 +273,9 @@ class JointProblem(BatchedAPI):
         theta = jnp.asarray(theta, jnp.float64)
         if not self.likelihood.is_gaussian:
             raise ValueError(f"likelihood {self.likelihood.kind!r} has no residuals")
-        f = self.jitted("residuals", lambda tb, data: self.map_batch(lambda t: self.residuals_theta(t, data), tb))
-        return f(theta[None], self.data)[0] if theta.ndim == 1 else f(theta, self.data)
+        out = self.in_chunks("residuals", lambda tb, data: self.map_batch(lambda t: self.residuals_theta(t, data), tb),
+                             theta.reshape(-1, theta.shape[-1]))
+        return out[0] if theta.ndim == 1 else out
 
     def split_residuals(self, r) -> list[np.ndarray]:
         """Split a concatenated residual vector (..., n) into the videos' blocks."""

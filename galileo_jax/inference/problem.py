@@ -382,22 +382,31 @@ class BatchedAPI:
 
     @property
     def pads_batches(self) -> bool:
-        """Whether batched calls are padded to a few fixed shapes (:meth:`in_chunks`): on the C
-        engine, whose programs hold a host callback, which JAX's persistent cache never stores
-        (each shape is compiled in every process: 0.1-2 s) and whose rollout cache simulates
-        padded copies once. MJX programs are cached on disk, and padding would cost rollouts."""
+        """Whether every batched call of up to ``max_batch`` rows runs one program (:meth:`batch_size`):
+        on the C engine, whose programs hold a host callback, which JAX's persistent cache never
+        stores (each shape is compiled in every process: 0.1-2 s) and whose rollout cache
+        simulates padded copies once. MJX pads only to the next power of two (a padded row costs
+        a rollout there)."""
         return self.simulator_engine == "mujoco"
+
+    def batch_size(self, n: int) -> int:
+        """Rows (>= n, for 1 <= n <= ``max_batch``) that a batch of n runs as in :meth:`in_chunks`:
+        ``max_batch`` where :attr:`pads_batches`, else the next power of two (at most
+        ``max_batch``). Each size is a compiled program of every batched function; an MJX one
+        takes 6-10 s to compile on a 2-core CPU (the user-effect diagnose test compiled its
+        log-likelihood at 6 sizes), and padding costs at most 2x the rollouts of a small call."""
+        if self.pads_batches:
+            return self.max_batch
+        return min(1 << max(int(n) - 1, 0).bit_length(), self.max_batch)
 
     def in_chunks(self, name: Hashable, fn: Callable, z, data=None) -> jax.Array:
         """``fn(zb, data)`` ((B, d) -> (B, ...)) jitted, over the rows of ``z`` (B, d), with
-        ``data`` (default the problem's). Where :attr:`pads_batches`, in chunks of ``max_batch``
-        rows, the last padded with copies of its last row: one compiled program for every batch
-        size (measured on README command 1: eight sizes, 0.15-0.35 s of compilation each, in
-        every process). Returns (B, ...)."""
+        ``data`` (default the problem's), in chunks of ``max_batch`` rows, the last padded with
+        copies of its last row to :meth:`batch_size`: a few compiled programs for every batch size
+        (measured on README command 1 on the C engine: eight sizes, 0.15-0.35 s of compilation
+        each, in every process). Returns (B, ...)."""
         jitted = self.jitted(name, fn)
         data = self.data if data is None else data
-        if not self.pads_batches:
-            return jitted(jnp.asarray(z, jnp.float64), data)
         z = np.asarray(z, np.float64)
         if z.shape[0] == 0:
             return jitted(jnp.asarray(z), data)
@@ -405,8 +414,9 @@ class BatchedAPI:
         out = []
         for i in range(0, z.shape[0], mb):
             part = z[i:i + mb]
-            out.append(np.asarray(jitted(jnp.asarray(pad_rows(part, mb)), data))[:part.shape[0]])
-        return jnp.asarray(np.concatenate(out))
+            out.append(np.asarray(jitted(jnp.asarray(pad_rows(part, self.batch_size(part.shape[0]))), data))
+                       [:part.shape[0]])
+        return jnp.asarray(np.concatenate(out)) if len(out) > 1 else jnp.asarray(out[0])
 
     def log_density(self, z: jax.Array) -> jax.Array:
         """Jitted :meth:`log_density_fn` at this problem's data: (B, d) -> (B,) (:meth:`in_chunks`)."""
