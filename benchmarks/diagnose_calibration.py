@@ -178,7 +178,8 @@ def stated_scene(scene, family: str, truth: dict):
     return scene.model_copy(update={"ramp": scene.ramp.model_copy(update={"thickness": round(float(t), 3)})})
 
 
-def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family: str = "ours") -> dict:
+def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family: str = "ours",
+            search_patience: int | None = None) -> dict:
     """Render (unless already rendered) and diagnose one video; the record written per video."""
     from galileo_jax.criticism.diagnosis import diagnose, DiagnoseSettings
     from galileo_jax.observe import observe, read_video
@@ -194,7 +195,7 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
     clip = read_video(video, fps_override=rendered_scene.video.fps)
     obs = observe(clip, rendered_scene, progress=False)
     t1 = time.perf_counter()
-    diag = diagnose(rendered_scene, obs, DiagnoseSettings(), seed=seed)
+    diag = diagnose(rendered_scene, obs, DiagnoseSettings(search_patience=search_patience), seed=seed)
     d = diag.decision
     attainable = attainable_rmse(rendered_scene, obs, params, effects, truth["release_time"])
     first = d["missing_effects"][0] if d["missing_effects"] else None
@@ -290,6 +291,8 @@ def main(argv=None) -> int:
                     help="render: only render the videos (kept in --out); analyse: only diagnose videos already "
                          "rendered there (to spread the diagnoses over machines); all: both")
     ap.add_argument("--indices", default=None, help="only these video indices (comma-separated), e.g. 1,2")
+    ap.add_argument("--search-patience", type=int, default=None,
+                    help="DiagnoseSettings.search_patience (default: its default, off)")
     args = ap.parse_args(argv)
     from galileo_jax.jaxcache import enable_compilation_cache
 
@@ -313,7 +316,7 @@ def main(argv=None) -> int:
             if args.stage == "analyse" and not (work / f"{effect}_{i}.mp4").exists():
                 print(f"{effect} #{i}: not rendered, skipped", flush=True)
                 continue
-            rec = run_one(scene_path, effect, i, work, args.seed, args.family)
+            rec = run_one(scene_path, effect, i, work, args.seed, args.family, args.search_patience)
             write_atomic(path, json.dumps(rec, indent=1, default=float))
             print(f"{effect} #{i}: {rec['decision']} ({rec['diagnose_s']:.0f} s)", flush=True)
             (work / f"{effect}_{i}.mp4").unlink(missing_ok=True)

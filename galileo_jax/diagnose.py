@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=("auto", "mjx", "mujoco"), default="auto",
                    help="simulation engine: auto (default: C MuJoCo except for effects that act every "
                         "physics step, which run on MJX), mjx, or mujoco (no per-step effects)")
+    p.add_argument("--search-patience", type=int, default=None, metavar="N",
+                   help="stop each refit's CMA-ES search after N generations without a 0.5-nat gain: faster "
+                        "(12 took a third off one video's refits), not yet calibrated (default: every generation)")
     p.add_argument("--out", help="output folder (default: <first video>_diagnose next to it)")
     p.add_argument("--fps", type=float, help="frame rate override (frames per second)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
@@ -229,7 +232,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not args.videos:
         raise GalileoError("give a video file (or --list); see python -m galileo_jax.diagnose --help")
-    for name, value, low in (("--refits", args.refits, 0), ("--max-effects", args.max_effects, 1)):
+    for name, value, low in (("--refits", args.refits, 0), ("--max-effects", args.max_effects, 1),
+                             ("--search-patience", 1 if args.search_patience is None else args.search_patience, 1)):
         if value < low:
             raise GalileoError(f"{name} must be >= {low}, got {value}")
     if not 0 < args.alpha < 1:
@@ -258,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     observations = [observe(read_video(video, fps_override=args.fps or scene.video.fps), scene, progress=not args.quiet)
                     for video, scene in inputs]
     settings = DiagnoseSettings(candidates=names, refits=args.refits, alpha=args.alpha, max_effects=args.max_effects,
-                                per_video=per_video, engine=args.engine)
+                                per_video=per_video, engine=args.engine, search_patience=args.search_patience)
     say = None if args.quiet else (lambda msg: print(f"  [{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr))
     try:
         diag = diagnose([s for _, s in inputs], observations, settings, seed=args.seed, progress=say)

@@ -226,6 +226,7 @@ def test_effects_and_diagnose_bad_input(tmp_path):
     assert_one_line_error(run_cli("galileo_jax.diagnose", str(EXAMPLE), "--effects", "rolling"),
                           "none of the candidate effects")
     assert_one_line_error(run_cli("galileo_jax.diagnose", str(EXAMPLE), "--refits", "-1"), "--refits")
+    assert_one_line_error(run_cli("galileo_jax.diagnose", str(EXAMPLE), "--search-patience", "0"), "--search-patience")
     listing = run_cli("galileo_jax.diagnose", "--list")
     assert listing.returncode == 0
     for name in ("quadratic_drag", "linear_drag", "restitution", "ramp_friction", "initial_push", "rolling",

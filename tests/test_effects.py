@@ -365,12 +365,13 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     settings = DiagnoseSettings(search_popsize_c=8, search_generations_c=2, base_starts=1, base_screen=8,
                                   max_steps=10)
     union = Union([scene], [obs], (get_effect("linear_drag"),), settings, engine="mujoco")
-    starts_seen = []
+    starts_seen, patience_seen = [], []
     real = S.cma_search
 
     def spy(problem, theta0, **kw):
         out = real(problem, theta0, **kw)
         starts_seen.append((np.asarray(theta0).copy(), kw["seed"], out.loglik))
+        patience_seen.append(kw.get("patience"))
         return out
 
     monkeypatch.setattr(M, "cma_search", spy)  # fit_model's search
@@ -385,6 +386,12 @@ def test_a_multimodal_effect_gets_several_searches_from_two_starts(monkeypatch):
     assert not np.allclose(starts_seen[0][0], starts_seen[1][0]) and np.allclose(starts_seen[0][0], starts_seen[2][0])
     assert fit.search["loglik_search"] == pytest.approx(max(ll for _, _, ll in starts_seen))
     assert fit.loglik >= max(ll for _, _, ll in starts_seen) - 1e-6
+    assert set(patience_seen) == {None} and len(fit.search["generations_run"]) == 3
+    # DiagnoseSettings.search_patience reaches every search
+    patience_seen.clear()
+    fit = fit_model(union, ("linear_drag",), dataclasses.replace(settings, search_patience=1), jax.random.PRNGKey(0),
+                    init=np.array([0.3, 0.0, 0.5]))
+    assert patience_seen == [1, 1, 1] and all(1 <= g <= 2 for g in fit.search["generations_run"])
 
 
 def test_nested_refit_never_tests_below_the_null():

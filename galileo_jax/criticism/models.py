@@ -368,7 +368,7 @@ def fit_model(union: Union, free_effects, settings: DiagnoseSettings, key, *, in
             if glob.loglik > res.loglik:
                 res = glob
         res, record = search_then_lm(union, res, held, settings, key, settings.refit_search, settings.search_sigma,
-                                     restarts=restarts, starts=starts)
+                                     restarts=restarts, starts=starts, patience=settings.search_patience)
     fit = evaluate(union, res, free_effects, settings)
     if record is not None:
         record.setdefault("rmse_lm", fit.rmse)  # the search's point was not used: LM's end is the fit
@@ -384,7 +384,7 @@ def search_restarts(union: Union, free_effects) -> int:
 
 def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettings, key, generations: int,
                    sigma: float, rmse_lm: float | None = None, restarts: int = 1,
-                   starts: Sequence[np.ndarray] = ()) -> tuple[GradResult, dict]:
+                   starts: Sequence[np.ndarray] = (), patience: int | None = None) -> tuple[GradResult, dict]:
     """CMA-ES from ``res``'s estimate (:func:`search_budget` of ``generations``, initial step
     ``sigma`` in z), then LM again from its best point if that is better; returns the better
     result and a record of the search (log-likelihoods of LM's end, of the search and of the result,
@@ -393,16 +393,19 @@ def search_then_lm(union: Union, res: GradResult, held, settings: DiagnoseSettin
     With ``restarts`` > 1, that many independent searches (seeds) run, alternating between
     ``res``'s estimate and ``starts`` (e.g. a global screen's fit), and the best point of all is
     used: where the cost has several basins (impacts, :attr:`Effect.search_restarts`) one
-    search finds the best one only some of the time."""
+    search finds the best one only some of the time. ``patience``: each search stops after that
+    many generations without a gain of 0.5 nats (:func:`~galileo_jax.inference.search.cma_search`)."""
     popsize, generations = search_budget(union, settings, generations)
     seed = int(jax.random.randint(key, (), 0, 2**30))
     points = [res.theta] + [np.asarray(s, np.float64) for s in starts]
     runs = [cma_search(union.problem, points[r % len(points)], sigma=sigma, popsize=popsize,
-                       generations=generations, seed=seed + r, fixed=held) for r in range(max(int(restarts), 1))]
+                       generations=generations, seed=seed + r, fixed=held, patience=patience)
+            for r in range(max(int(restarts), 1))]
     found = max(runs, key=lambda f: f.loglik)
     search = {"method": "CMA-ES (pycma)", "generations": found.generations,
               "evaluations": sum(f.evaluations for f in runs), "loglik_lm": res.loglik,
-              "loglik_search": found.loglik, "time_s": sum(f.time_s for f in runs), "used": False}
+              "loglik_search": found.loglik, "time_s": sum(f.time_s for f in runs), "used": False,
+              "generations_run": [int(f.generations) for f in runs]}
     if len(runs) > 1:
         search["restarts"] = len(runs)
         search["loglik_runs"] = [float(f.loglik) for f in runs]

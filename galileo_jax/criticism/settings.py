@@ -57,6 +57,14 @@ class DiagnoseSettings:
             here): quadratic drag 0.0078 -> 0.0030 m/s (drag 1.35 -> 1.90, truth 1.88; floor
             0.0035), linear drag 0.0059 -> 0.0032 (drag 1.87 -> 2.36, truth 2.36), velocity
             friction 0.0067 -> 0.0049 (dk_dv 0.19 -> 0.22, truth 0.24).
+        search_patience: stop each refit's CMA-ES search after this many generations in a row
+            that raised its best log-likelihood by at most 0.5 nats
+            (:func:`~galileo_jax.inference.search.cma_search`'s ``patience``; ``fit``'s search stops
+            after 12); None runs every generation. The named model's second search
+            (``winner_search``) always runs in full: it sets the reported fit. Off by default
+            until the calibration tables are rerun with it (``docs/criticism.md``, "Where a
+            foreign diagnosis spends its time": 12 cut one foreign video's refits 577 -> 425 s
+            with the same decision).
         search_popsize, search_sigma: CMA-ES points per generation and initial step size in
             the unconstrained coordinates.
         winner_search: CMA-ES generations of a second search (half the step size) of the
@@ -140,6 +148,7 @@ class DiagnoseSettings:
     max_steps: int = 40
     refit_search: int = 40
     search_popsize: int = 32
+    search_patience: int | None = None
     search_sigma: float = 0.5
     winner_search: int = 40
     indistinct_p: float = 0.05
