@@ -416,7 +416,7 @@ class BatchedAPI:
             part = z[i:i + mb]
             out.append(np.asarray(jitted(jnp.asarray(pad_rows(part, self.batch_size(part.shape[0]))), data))
                        [:part.shape[0]])
-        return jnp.asarray(np.concatenate(out)) if len(out) > 1 else jnp.asarray(out[0])
+        return jnp.asarray(np.concatenate(out))
 
     def log_density(self, z: jax.Array) -> jax.Array:
         """Jitted :meth:`log_density_fn` at this problem's data: (B, d) -> (B,) (:meth:`in_chunks`)."""
