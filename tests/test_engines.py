@@ -102,6 +102,36 @@ def test_c_engine_simulates_a_repeated_rollout_once(monkeypatch):
     assert ran == [3, 1, 3, 3] and np.array_equal(again, fresh[rows])
 
 
+def test_c_engine_reuses_its_model_copies_with_bit_identical_rollouts(monkeypatch):
+    """The models a batch ran on are reused by the thread's next batch (no copy of the compiled
+    model per rollout), and every field an earlier batch wrote is restored first: a batch on
+    reused models gives exactly the poses of one on fresh copies, also after a batch that wrote
+    an effect's field (pair_solref) which the next one leaves alone."""
+    import copy as copy_module
+
+    from galileo_jax.physics import simulate_c
+
+    sim = make_simulator(SCENE, 30.0, (), "mujoco")
+    n = steps_needed(sim, 1.2)
+    rng = np.random.default_rng(11)
+    mass, friction = rng.uniform(0.1, 1.0, (4, 2)), np.c_[rng.uniform(0.05, 0.3, 4), rng.uniform(0.05, 0.6, 4)]
+    solref = np.repeat(np.asarray(sim.mj_model.pair_solref)[None], 4, axis=0)
+    solref[:, :, 1] = 0.2  # bouncy contacts: another outcome at the impact
+    copies = []
+    real_copy = copy_module.copy
+    monkeypatch.setattr(simulate_c.copy, "copy", lambda x: copies.append(1) or real_copy(x))
+    simulate_c._POOL.clear()
+    first = simulate_c.rollout_poses_host(sim, mass, friction, n)
+    assert len(copies) == 4
+    bouncy = simulate_c.rollout_poses_host(sim, mass, friction, n, {"pair_solref": solref})
+    again = simulate_c.rollout_poses_host(sim, mass[::-1], friction[::-1], n)
+    assert len(copies) == 4  # the first batch's models, reused twice
+    assert not np.array_equal(bouncy, first)  # the field was written ...
+    assert np.array_equal(again, first[::-1])  # ... and restored: as on fresh copies
+    simulate_c._POOL.clear()
+    assert np.array_equal(simulate_c.rollout_poses_host(sim, mass, friction, n, {"pair_solref": solref}), bouncy)
+
+
 def test_c_engine_simulates_only_the_fit_window_and_the_whole_video_for_reports(monkeypatch):
     """The fit's rollouts stop at the last frame the likelihood uses (``ProblemData.live_steps``)
     and give the same log-likelihoods as whole rollouts; ``simulate`` still covers the whole video."""
