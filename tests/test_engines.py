@@ -103,8 +103,8 @@ def test_c_engine_simulates_a_repeated_rollout_once(monkeypatch):
 
 
 def test_c_engine_reuses_its_model_copies_with_bit_identical_rollouts(monkeypatch):
-    """The models a batch ran on are reused by the thread's next batch (no copy of the compiled
-    model per rollout), and every field an earlier batch wrote is restored first: a batch on
+    """The models a batch ran on are reused by the next batch (no copy of the compiled model per
+    rollout), and every field an earlier batch wrote is restored first: a batch on
     reused models gives exactly the poses of one on fresh copies, also after a batch that wrote
     an effect's field (pair_solref) which the next one leaves alone."""
     import copy as copy_module

@@ -277,6 +277,11 @@ def model_index(model: mujoco.MjModel, n_objects: int) -> ModelIndex:
     return ModelIndex(tuple(bodies), tuple(qpos), tuple(dofs), tuple(pairs), int(op), tuple(ramp), tuple(floor))
 
 
+#: The model fields :func:`set_physics` writes (the C engine restores them before it reuses a
+#: model copy: :func:`galileo_jax.physics.simulate_c._checkout_models`).
+PHYSICS_FIELDS = ("body_mass", "body_inertia", "pair_friction")
+
+
 def set_physics(model: mujoco.MjModel, data: mujoco.MjData, index: ModelIndex, mass, friction) -> None:
     """Write masses and frictions into a C model, as ``simulate.apply_params`` does in MJX.
 

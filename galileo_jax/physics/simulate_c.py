@@ -13,8 +13,8 @@ of B rollouts (one ``mujoco.rollout`` over a thread pool), and the samplers, the
 finite-difference Jacobian and the likelihood run unchanged inside ``jit``. It has no
 derivative: differentiating through it raises (use the MJX engine for ``jacobian: ad``).
 
-Per rollout b, a copy of the compiled model (reused from the thread's earlier batches, with
-every field a batch wrote restored first: :func:`_checkout_models`) gets the masses and frictions as
+Per rollout b, a copy of the compiled model (reused from earlier batches, with every field a
+batch wrote restored first: :func:`_checkout_models`) gets the masses and frictions as
 :func:`galileo_jax.physics.simulate.apply_params` sets them in MJX (``body_mass``, ``body_inertia``
 x m/m0, ``pair_friction``; ``mj_setConst`` recomputes the invweights, as
 :func:`galileo_jax.physics.model.set_physics` does for the renderer), then the effects' model updates
@@ -40,7 +40,7 @@ from mujoco import rollout as mj_rollout
 
 from galileo_jax.effects.runtime import has_step_hooks
 from galileo_jax.errors import GalileoError
-from galileo_jax.physics.model import object_poses, set_physics
+from galileo_jax.physics.model import PHYSICS_FIELDS, object_poses, set_physics
 
 #: Engines a simulator can run on.
 ENGINES = ("mjx", "mujoco")
@@ -75,9 +75,6 @@ def check_supported(effects) -> None:
                            "cannot do; use --engine mjx")
 
 
-#: Fields :func:`~galileo_jax.physics.model.set_physics` writes into a C model (restored from the
-#: compiled model before a pooled copy is used again, :func:`_checkout_models`).
-_PHYSICS_FIELDS = ("body_mass", "body_inertia", "pair_friction")
 #: Compiled models whose copies :func:`_checkout_models` keeps (least recently used dropped).
 POOL_MODELS = 8
 #: {id(compiled model): (that model, [free lists of copies], set of field names ever written)}
@@ -96,7 +93,7 @@ def _checkout_models(base: mujoco.MjModel, n: int, names) -> list[mujoco.MjModel
     with _POOL_LOCK:
         entry = _POOL.get(id(base))
         if entry is None or entry[0] is not base:  # an id reused by another model: start afresh
-            entry = _POOL[id(base)] = (base, [], set(_PHYSICS_FIELDS))
+            entry = _POOL[id(base)] = (base, [], set(PHYSICS_FIELDS))
             while len(_POOL) > POOL_MODELS:
                 _POOL.popitem(last=False)
         _POOL.move_to_end(id(base))
