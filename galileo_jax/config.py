@@ -144,7 +144,7 @@ def resolve_engine(cfg: FitConfig, effects=()) -> str:
     "auto" picks C MuJoCo ("mujoco"), measured several times faster than MJX for the ramp
     scene on a CPU and, at a fit's batch sizes, on a GPU too (``benchmarks/results/engines.md``),
     unless the fit needs what only MJX has: derivatives (``grad.jacobian: ad``) or effects that
-    act every physics step (forces, velocity-dependent friction).
+    act every physics step and have no C form (velocity-dependent friction; quadratic drag has one).
 
     Args:
         cfg: the settings.
@@ -153,12 +153,12 @@ def resolve_engine(cfg: FitConfig, effects=()) -> str:
     Raises:
         ConfigError: "mujoco" asked for together with ``grad.jacobian: ad``.
     """
-    from galileo_jax.effects.runtime import has_step_hooks
+    from galileo_jax.effects.runtime import needs_mjx
 
     if cfg.engine == "mujoco" and cfg.grad.jacobian == "ad":
         raise ConfigError("grad.jacobian 'ad' needs derivatives, which the C MuJoCo engine has not; "
                           "use --engine mjx or grad.jacobian fd")
-    return pick_engine(cfg.engine, cfg.grad.jacobian == "ad" or has_step_hooks(effects))
+    return pick_engine(cfg.engine, cfg.grad.jacobian == "ad" or needs_mjx(effects))
 
 
 def pick_engine(requested: str, needs_mjx: bool = False) -> str:

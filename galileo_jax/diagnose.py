@@ -53,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=float, default=0.05, help="false-alarm rate of 'an effect is missing' (default 0.05)")
     p.add_argument("--engine", choices=("auto", "mjx", "mujoco"), default="auto",
                    help="simulation engine: auto (default: C MuJoCo except for effects that act every "
-                        "physics step, which run on MJX), mjx, or mujoco (no per-step effects)")
+                        "physics step, which run on MJX), mjx, or mujoco (quadratic_drag through MuJoCo's "
+                        "fluid model; no velocity_friction)")
     p.add_argument("--search-patience", type=int, default=None, metavar="N",
                    help="stop each refit's CMA-ES search after N generations without a 0.5-nat gain: faster "
                         "(12 took a third off one video's refits), not yet calibrated (default: every generation)")

@@ -80,8 +80,8 @@ def test_unknown_option_and_method(tmp_path):
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--ensemble", "0"), "--ensemble")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--ensemble", "100"), "--ensemble")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--engine", "bullet"), "bullet")
-    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--engine", "mujoco", "--effects", "quadratic_drag"),
-                          "--engine mjx")
+    assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--engine", "mujoco",
+                                  "--effects", "velocity_friction"), "--engine mjx")
 
 
 @pytest.mark.slow

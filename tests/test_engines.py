@@ -173,12 +173,14 @@ def test_engine_choice():
     assert resolve_engine(FitConfig()) == "mujoco"  # on a GPU too (engines.md: faster at a fit's batches)
     assert resolve_engine(FitConfig(engine="mjx")) == "mjx"
     assert resolve_engine(FitConfig.model_validate({"grad": {"jacobian": "ad"}})) == "mjx"
-    drag = resolve_effects("quadratic_drag")  # a force every step: only MJX has it
-    assert resolve_engine(FitConfig(), drag) == "mjx"
+    stepped = resolve_effects("velocity_friction")  # friction changing every step: only MJX has it
+    assert resolve_engine(FitConfig(), stepped) == "mjx"
+    # a force every step with a C form (quadratic drag: MuJoCo's fluid model) stays on C
+    assert resolve_engine(FitConfig(), resolve_effects("quadratic_drag")) == "mujoco"
     with pytest.raises(ConfigError, match="derivatives"):
         resolve_engine(FitConfig.model_validate({"engine": "mujoco", "grad": {"jacobian": "ad"}}))
     with pytest.raises(GalileoError, match="--engine mjx"):
-        make_simulator(SCENE, 30.0, drag, "mujoco")
+        make_simulator(SCENE, 30.0, stepped, "mujoco")
     with pytest.raises(GalileoError, match="unknown engine"):
         make_simulator(SCENE, 30.0, (), "bullet")
 
@@ -196,6 +198,29 @@ def test_each_method_gets_its_own_ensemble_unless_the_settings_name_one():
     assert ensemble_for(cfg, "mh") == ensemble_for(cfg, "grad") == 2
     with pytest.raises(ValueError):
         FitConfig.model_validate({"likelihood": {"ensemble": 0}})
+
+
+def test_c_engine_quadratic_drag_matches_mjx():
+    """Quadratic drag is a force every step on MJX and MuJoCo's ellipsoid fluid model on C: the
+    same profiles (to 1e-9 m/s while object 1 slides alone, to the engines' usual differences after
+    the impact)."""
+    drag = resolve_effects("quadratic_drag")
+    rng = np.random.default_rng(3)
+    b = 16
+    mass = rng.uniform(0.1, 1.0, (b, 2))
+    friction = np.c_[rng.uniform(0.02, 0.3, b), rng.uniform(0.05, 0.8, b)]
+    c = rng.uniform(0.0, 3.0, (b, 1))
+    out = {}
+    for engine in ("mjx", "mujoco"):
+        sim = make_simulator(SCENE, 30.0, drag, engine)
+        n = steps_needed(sim, 2.0)
+        f = jax.jit(jax.vmap(lambda m, k, e: velocity_profile(sim, PhysParams(m, k, e), FRAMES, 0.0, n)))
+        out[engine] = np.asarray(f(mass, friction, c))
+    base = _profiles("mujoco", mass, friction)
+    assert np.max(np.abs(out["mjx"][:, 0, :10] - out["mujoco"][:, 0, :10])) < 1e-9
+    assert np.max(np.abs(base[:, 0, :10] - out["mujoco"][:, 0, :10])) > 1e-3  # ... and the drag acts on C
+    rms = np.sqrt(np.mean((out["mjx"] - out["mujoco"]) ** 2, axis=(1, 2)))
+    assert np.median(rms) < 0.01 and np.max(rms) < 0.05, rms
 
 
 def test_c_engine_with_effects_set_once():

@@ -34,6 +34,12 @@ code runs inside the jitted MJX rollout and, on NumPy inputs, in the C MuJoCo re
   changes the start of the motion does not trade off against the release time (the base
   fit then starts the refit near its optimum). ``initial_push`` uses it: a pushed object
   leaves when a push-free one released at the fitted time would have reached v0.
+* ``c_build(spec, scene)`` and ``c_model(fields, values, ctx)``: the C MuJoCo engine's form of
+  an effect whose ``force`` or ``friction`` acts every step (which the open-loop
+  ``mujoco.rollout`` cannot call): a structure added only to models built for that engine and a
+  once-per-rollout field update, with which MuJoCo's own physics applies the same force. An
+  effect with them runs on both engines (MJX through ``force``/``friction``, C MuJoCo through
+  these); ``quadratic_drag`` uses MuJoCo's ellipsoid fluid model.
 
 ``values`` is the (n_params,) array of the effect's parameters in the order of ``params``;
 ``state`` a :class:`BodyState`; ``ctx`` the scene's :class:`EffectContext`.
@@ -153,7 +159,8 @@ class Effect:
             effect (:func:`galileo_jax.criticism.diagnosis.search_then_lm`; 1 for a likelihood with one
             basin to find, more where it is multimodal, e.g. at impacts).
         applies: ``scene -> None`` if the effect can act in the scene, else a reason (str).
-        build, model, initial_velocity, force, friction, release_delay: hooks (module docstring).
+        build, model, initial_velocity, force, friction, release_delay, c_build, c_model: hooks
+            (module docstring).
     """
 
     name: str
@@ -169,6 +176,8 @@ class Effect:
     force: Callable | None = field(default=None, repr=False)
     friction: Callable | None = field(default=None, repr=False)
     release_delay: Callable | None = field(default=None, repr=False)
+    c_build: Callable | None = field(default=None, repr=False)
+    c_model: Callable | None = field(default=None, repr=False)
 
     @property
     def structural(self) -> bool:

@@ -57,6 +57,42 @@ def _quadratic_force(state, values, ctx):
     return -values[0] * jnp.asarray(state.mass)[:, None] * speed * v
 
 
+#: Radius (m) of the massless, non-colliding sphere that carries an object's quadratic drag on
+#: the C engine (:func:`_drag_spheres`), and the fluid density (kg/m^3) of that model: tiny, so
+#: that MuJoCo's added-mass terms (density x volume) vanish; the drag coefficient absorbs it.
+DRAG_SPHERE_RADIUS = 0.01
+DRAG_DENSITY = 1e-6
+
+
+def _drag_spheres(spec, scene):
+    # The C engine's quadratic drag: MuJoCo's ellipsoid fluid model (MuJoCo documentation,
+    # "Fluid forces") on a sphere at each object's centre, with only its blunt-drag term:
+    # F = -C rho A |v| v, A = pi r^2 the sphere's projected area in every direction, so
+    # F = -c m |v| v exactly for C = c m / (rho pi r^2) (:func:`_drag_coefficients`), however
+    # the object turns. Massless and without contacts: nothing else in the model changes.
+    spec.option.density = DRAG_DENSITY
+    for i in range(scene.n_objects):
+        spec.body(f"object{i + 1}").add_geom(
+            name=f"object{i + 1}_drag", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[DRAG_SPHERE_RADIUS, 0, 0], mass=0.0,
+            contype=0, conaffinity=0, group=5, fluid_ellipsoid=1, fluid_coefs=[0.0, 0.0, 0.0, 0.0, 0.0])
+
+
+def _drag_coefficients(fields, values, ctx):
+    # each object's drag sphere (the last geom of its body, added by _drag_spheres): its
+    # ellipsoid-model row [on, blunt drag, slender drag, angular drag, Kutta, Magnus, added
+    # mass (3), added inertia (3)] with the blunt drag c m / (rho pi r^2) alone
+    fluid = jnp.asarray(fields["geom_fluid"])
+    mass = jnp.asarray(fields["body_mass"])
+    area = DRAG_DENSITY * math.pi * DRAG_SPHERE_RADIUS ** 2
+    for b in ctx.bodies:
+        g = int(fields["body_geomadr"][b]) + int(fields["body_geomnum"][b]) - 1
+        if int(fields["geom_type"][g]) != mujoco.mjtGeom.mjGEOM_SPHERE:
+            raise ValueError(f"body {b} has no drag sphere as its last geom: build the model with engine 'mujoco'")
+        row = jnp.zeros(fluid.shape[1], fluid.dtype).at[0].set(1.0).at[1].set(values[0] * mass[b] / area)
+        fluid = fluid.at[g].set(row)
+    return {"geom_fluid": fluid}
+
+
 def _linear_damping(fields, values, ctx):
     # F = -b m v as joint damping of each object's three translational (world-frame) free-joint
     # dofs: d = b m. MuJoCo applies it as the passive force -d qvel and, in its Euler integrator,
@@ -76,6 +112,8 @@ QUADRATIC_DRAG = Effect(
     evidence="the shape of the speed-time curve at high speed (a steeper ramp, a higher start or a longer run)",
     source="Newton's drag law F = rho C_d A v^2 / 2 (e.g. Taylor, Classical Mechanics, 2.4)",
     force=_quadratic_force,
+    c_build=_drag_spheres,
+    c_model=_drag_coefficients,
 )
 
 LINEAR_DRAG = Effect(

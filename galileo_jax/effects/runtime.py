@@ -80,8 +80,10 @@ class _Fields:
         return getattr(self._model, name)
 
 
-def model_updates(effects, values_list, model, ctx) -> dict:
-    """Merged field updates of the effects' ``model`` hooks for ``model`` (later effects see earlier updates)."""
+def model_updates(effects, values_list, model, ctx, engine: str = "mjx") -> dict:
+    """Merged field updates of the effects' ``model`` hooks for ``model`` (later effects see earlier
+    updates); for ``engine`` "mujoco" also their ``c_model`` hooks (the C engine's form of a
+    per-step effect, :class:`~galileo_jax.effects.base.Effect`)."""
     updates: dict = {}
 
     class _View(_Fields):
@@ -91,6 +93,8 @@ def model_updates(effects, values_list, model, ctx) -> dict:
     for e, v in zip(effects, values_list):
         if e.model is not None:
             updates.update(e.model(_View(model), v, ctx))
+        if engine == "mujoco" and e.c_model is not None:
+            updates.update(e.c_model(_View(model), v, ctx))
     return updates
 
 
@@ -139,6 +143,12 @@ def frictions(effects, values_list, k_surface, state: BodyState, ctx):
 def has_step_hooks(effects) -> bool:
     """True when some effect acts every step (force or friction)."""
     return any(e.force is not None or e.friction is not None for e in effects)
+
+
+def needs_mjx(effects) -> bool:
+    """True when some effect acts every step and has no C MuJoCo form (``c_model``): only MJX
+    can simulate it."""
+    return any((e.force is not None or e.friction is not None) and e.c_model is None for e in effects)
 
 
 # ----------------------------------------------------------------------------- C MuJoCo

@@ -164,12 +164,14 @@ def set_ramp_board(spec: mujoco.MjSpec, scene: Scene, thickness: float) -> None:
             body.pos = list(np.asarray(body.pos) + lift * normal)
 
 
-def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None) -> mujoco.MjSpec:
+def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None, engine: str = "mjx") -> mujoco.MjSpec:
     """Build the MuJoCo specification of a scene (ramp, floor, objects, contact pairs).
 
     ``effects``: :class:`~galileo_jax.effects.Effect` objects whose ``build`` hook changes
-    the structure (e.g. ``rolling``), applied last. ``world``: physics the model does not have
-    (:class:`WorldPhysics`, rendering only), applied before the effects.
+    the structure (e.g. ``rolling``), applied last; for ``engine`` "mujoco" (the C engine's
+    rollouts) then their ``c_build`` hooks (the C form of a per-step effect). ``world``:
+    physics the model does not have (:class:`WorldPhysics`, rendering only), applied before
+    the effects.
 
     Returns:
         An uncompiled :class:`mujoco.MjSpec`; :func:`build_model` compiles it. Rendering code
@@ -233,11 +235,14 @@ def build_spec(scene: Scene, effects=(), world: WorldPhysics | None = None) -> m
     for effect in effects:
         if effect.build is not None:
             effect.build(spec, scene)
+    for effect in effects if engine == "mujoco" else ():
+        if effect.c_build is not None:
+            effect.c_build(spec, scene)
     return spec
 
 
 def build_model(scene: Scene, timestep: float | None = None, effects=(),
-                world: WorldPhysics | None = None) -> tuple[mujoco.MjModel, ModelIndex]:
+                world: WorldPhysics | None = None, engine: str = "mjx") -> tuple[mujoco.MjModel, ModelIndex]:
     """Compile the scene's MuJoCo model.
 
     Args:
@@ -245,12 +250,14 @@ def build_model(scene: Scene, timestep: float | None = None, effects=(),
         timestep: physics timestep in s (default 1/240 s).
         effects: effects whose ``build`` hooks change the model's structure.
         world: physics the model does not have (:class:`WorldPhysics`; rendering only).
+        engine: "mujoco" for the C engine's rollouts (the effects' ``c_build`` hooks added),
+            else "mjx".
 
     Returns:
         ``(model, index)``: the compiled :class:`mujoco.MjModel` and the :class:`ModelIndex`
         of the ids the simulator needs.
     """
-    spec = build_spec(scene, effects, world)
+    spec = build_spec(scene, effects, world, engine)
     if timestep is not None:
         spec.option.timestep = timestep
     model = spec.compile()

@@ -188,7 +188,7 @@ def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx", en
     if engine == "mujoco":
         simulate_c.check_supported(effects)
     dt = physics_timestep(fps, scene.simulation.substeps)
-    mj_model, index = build_model(scene, timestep=dt, effects=effects)
+    mj_model, index = build_model(scene, timestep=dt, effects=effects, engine=engine)
     model = _shareable(mj_model, mjx.put_model(mj_model))
     data0 = mjx.make_data(model)
     if engine == "mjx":
@@ -352,7 +352,7 @@ def _rollout_poses(sim: Simulator, params: PhysParams, n_steps: int, live_steps,
         if sim.effects:
             values = params.effects if params.effects is not None else jnp.asarray(neutral_values(sim.effects))
             vals = split_values(sim.effects, values)
-            fields = model_updates(sim.effects, vals, apply_params(sim, params), sim.ctx)
+            fields = model_updates(sim.effects, vals, apply_params(sim, params), sim.ctx, engine="mujoco")
             velocity = initial_velocity(sim.effects, vals, sim.ctx)
         return simulate_c.rollout_poses(sim, params.mass, params.friction, n_steps, fields, velocity, live_steps,
                                         offset)

@@ -22,7 +22,9 @@ and release velocities. Those are evaluated by the effects' own hooks in JAX, in
 before the callback (:func:`galileo_jax.physics.simulate.rollout`), and reach the host as arrays:
 the host code runs no JAX (JAX called from inside a host callback can deadlock). Effects that
 act every step (forces, velocity-dependent friction) need a state-dependent input that an
-open-loop ``mujoco.rollout`` cannot take: :func:`check_supported` rejects them.
+open-loop ``mujoco.rollout`` cannot take: :func:`check_supported` rejects them, unless the effect
+has a C form that MuJoCo's own physics computes (``Effect.c_build`` / ``c_model``: quadratic drag
+through the ellipsoid fluid model).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from galileo_jax.effects.runtime import has_step_hooks
+from galileo_jax.effects.runtime import needs_mjx
 from galileo_jax.errors import GalileoError
 from galileo_jax.physics.model import PHYSICS_FIELDS, object_poses, set_physics
 
@@ -66,10 +68,11 @@ def check_supported(effects) -> None:
     """Raise if the C engine cannot simulate these effects.
 
     Raises:
-        GalileoError: an effect acts every physics step (``force`` or ``friction`` hook), which
-            the open-loop ``mujoco.rollout`` cannot apply; the fix is ``--engine mjx``.
+        GalileoError: an effect acts every physics step (``force`` or ``friction`` hook) and has
+            no C form (``c_model``): the open-loop ``mujoco.rollout`` cannot apply it; the fix
+            is ``--engine mjx``.
     """
-    stepped = [e.name for e in effects if has_step_hooks((e,))]
+    stepped = [e.name for e in effects if needs_mjx((e,))]
     if stepped:
         raise GalileoError(f"effect(s) {', '.join(stepped)} act every physics step, which the C MuJoCo engine "
                            "cannot do; use --engine mjx")
