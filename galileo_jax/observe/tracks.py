@@ -318,11 +318,13 @@ def visible_fraction(shape, centre, half, angle) -> float:
     r = math.hypot(*half) + 2
     lo = np.floor(np.asarray(centre) - r).astype(int)
     size = int(2 * math.ceil(r) + 2)
+    h, w = shape[:2]
+    if min(half) >= 1.0 and lo[0] >= 0 and lo[1] >= 0 and lo[0] + size <= w and lo[1] + size <= h:
+        return 1.0  # the footprint's whole box (below) lies in the image: no need to draw it
     fp = footprint((size, size), centre, half, angle, offset=lo)
     total = fp.sum()
     if total == 0:
         return 0.0
-    h, w = shape[:2]
     ys, xs = np.nonzero(fp)
     ys, xs = ys + lo[1], xs + lo[0]
     return float(((xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)).sum() / total)
