@@ -3,8 +3,9 @@ and a user-defined effect picked up by ``diagnose``.
 
 * Every shipped effect's neutral values give back the base model's profile exactly.
 * Linear drag on the ramp: v(t) = (a0 / b)(1 - exp(-b t)) with a0 = g (sin - k cos) (closed form).
-* Quadratic drag on the ramp: s(t) = ln(cosh(sqrt(a0 c) t)) / c (closed form), on MJX (a force
-  every step) and on C MuJoCo (its ellipsoid fluid model on a massless sphere).
+* Quadratic drag on the ramp: s(t) = ln(cosh(sqrt(a0 c) t)) / c (closed form), on C MuJoCo (its
+  ellipsoid fluid model on a massless sphere); MJX's force hook gives the same profiles to 1e-9
+  m/s (tests/test_engines.py).
 * Initial push: the speed at release is v0 (first velocity sample, closed form v0 + a0 t);
   in a fit the push leaves v0 / a0 after the fitted release time, so away from the first
   frames the pushed profile is the base model's at the same release time.
@@ -138,11 +139,10 @@ def test_linear_drag_and_initial_push_match_closed_forms():
     assert (0.5 * a0 * t[-1] ** 2 + v0 * t[-1]) / s_exact[-1] > 1.1
 
 
-@pytest.mark.parametrize("engine", ["mjx", "mujoco"])
-def test_quadratic_drag_matches_the_closed_form_on_both_engines(engine):
+def test_quadratic_drag_matches_the_closed_form():
     scene = _scene(two=False, start=1.9)
     th, k, c = math.radians(20.0), 0.2, 1.2
-    sim = make_simulator(scene, 60.0, (get_effect("quadratic_drag"),), engine)
+    sim = make_simulator(scene, 60.0, (get_effect("quadratic_drag"),), "mujoco")
     n = steps_needed(sim, 0.8)
     p = PhysParams(jnp.array([0.5]), jnp.array([k]), jnp.array([c]))
     pose = np.asarray(jax.jit(lambda q: rollout(sim, q, n).pose)(p))
