@@ -56,14 +56,14 @@ def _simulator(x64: bool, iterations: int, ls_iterations: int, seconds: float):
     return dataclasses.replace(sim, mj_model=mj, model=model, data0=data0), n
 
 
-def _params(batch: int, x64: bool, seed: int = 0):
+def _params(batch: int, x64: bool):
+    """``engines.py``'s random masses and frictions, in the setting's precision."""
     import numpy as np
 
-    rng = np.random.default_rng(seed)
+    from engines import _params as engine_params
+
     dtype = np.float64 if x64 else np.float32
-    mass = rng.uniform(0.1, 1.0, (batch, 2)).astype(dtype)
-    friction = np.c_[rng.uniform(0.05, 0.3, batch), rng.uniform(0.05, 0.6, batch)].astype(dtype)
-    return mass, friction
+    return tuple(a.astype(dtype) for a in engine_params(batch))
 
 
 def measure(setting: str, batch: int, seconds: float, repeats: int) -> tuple[dict, object]:

@@ -148,7 +148,7 @@ def has_step_hooks(effects) -> bool:
 def needs_mjx(effects) -> bool:
     """True when some effect acts every step and has no C MuJoCo form (``c_model``): only MJX
     can simulate it."""
-    return any((e.force is not None or e.friction is not None) and e.c_model is None for e in effects)
+    return any(has_step_hooks((e,)) and e.c_model is None for e in effects)
 
 
 # ----------------------------------------------------------------------------- C MuJoCo
