@@ -183,3 +183,34 @@ def test_scenes_of_one_structure_share_compiled_programs():
             slope = np.polyfit(t[sel], speed[sel], 1)[0]
             expected_a = G * (math.sin(math.radians(30.0)) - 0.2 * math.cos(math.radians(30.0)))
             assert abs(slope / expected_a - 1) < 0.02, (slope, expected_a)
+
+
+def _step_jaxprs(closed) -> list:
+    """The jaxprs of every call of the jitted ``mjx.step`` (a ``jit`` equation named "step") in
+    a traced program, nested programs (scan, cond, ...) included."""
+    found = []
+
+    def walk(jaxpr):
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name in ("pjit", "jit") and eqn.params.get("name") == "step":
+                found.append(eqn.params["jaxpr"])
+            for value in eqn.params.values():
+                for sub in value if isinstance(value, (list, tuple)) else [value]:
+                    inner = getattr(sub, "jaxpr", sub)
+                    if hasattr(inner, "eqns"):
+                        walk(inner)
+
+    walk(closed.jaxpr)
+    return found
+
+
+def test_programs_reuse_the_traced_mjx_step(one_object):
+    """Two different programs that roll out MJX with the same batching call ``mjx.step`` through
+    ``simulate._step`` and share its traced form (the same jaxpr object): a process traces the
+    step once per batching, not once per program (``docs/simulation.md``)."""
+    sim, _ = one_object
+    p = PhysParams(jnp.ones((2, 1)), jnp.full((2, 1), 0.2))
+    a = _step_jaxprs(jax.make_jaxpr(jax.vmap(lambda q: rollout(sim, q, 5).pose))(p))
+    b = _step_jaxprs(jax.make_jaxpr(jax.vmap(lambda q: 2.0 * rollout(sim, q, 5).pose[-1]))(p))
+    assert len(a) == 1 and len(b) == 1
+    assert a[0] is b[0]

@@ -160,6 +160,16 @@ def physics_timestep(fps: float, substeps: int) -> float:
 
 _forward = jax.jit(mjx.forward)
 
+#: ``mjx.step`` as a jitted function of its own. Every program that rolls out MJX (a batched
+#: log-likelihood, an LM solve, a Jacobian, at each batch size) traces the step again; called
+#: through ``jit``, its traced (and vmapped) form is cached, so a program whose step is batched
+#: as an earlier one's reuses it. Measured on ``ramp_20``: a new vmapped rollout program of the
+#: same batch size traced in 0.05 s instead of 1.7-2.1 s, of another batch size in 1.35-1.4 s
+#: instead of 2.05 s, the same poses to the last bit; ``diagnose`` of a calibration video, warm
+#: cache, 574 -> 457 s (``docs/simulation.md``). XLA may round the fits' programs differently
+#: (the step is a call inside them), so MJX estimates can move within the likelihood's roughness.
+_step = jax.jit(mjx.step)
+
 
 def make_simulator(scene: Scene, fps: float, effects=(), engine: str = "mjx", ensemble: int = 1) -> Simulator:
     """Build the MuJoCo model of ``scene`` (with ``effects``) and move it to MJX.
@@ -367,7 +377,7 @@ def _rollout_poses(sim: Simulator, params: PhysParams, n_steps: int, live_steps,
         return _rollout_effects(sim, model, params, n_steps, live_steps, data0).pose
 
     def step(d, _):
-        d = mjx.step(model, d)
+        d = _step(model, d)
         return d, _pose(sim, d.qpos)
 
     _, poses = _scan_steps(sim, step, data0, n_steps, live_steps)
@@ -426,7 +436,7 @@ def _rollout_effects(sim: Simulator, model: mjx.Model, params: PhysParams, n_ste
             f = forces(effects, vals, state, ctx)
             if f is not None:
                 d = d.replace(xfrc_applied=d.xfrc_applied.at[bodies, 0:3].set(f.astype(d.xfrc_applied.dtype)))
-        d = mjx.step(m, d)
+        d = _step(m, d)
         return d, _pose(sim, d.qpos)
 
     _, poses = _scan_steps(sim, step, data0, n_steps, live_steps)
