@@ -120,7 +120,7 @@ def fit_one(video: Path, method: str) -> dict:
         base, _, ensemble = method.partition("@ens")
         name, _, init = base.partition("+")
         cfg = FitConfig()
-        if ensemble:  # else the method's own default (fit's: mh 4, the others 1)
+        if ensemble:  # else the method's own default (fit's: mh 2, the others 1)
             cfg.likelihood.ensemble = int(ensemble)
         rep = run_fit(video, load_scene(video.with_suffix(".yaml")), cfg, method=name,
                       out=video.parent / f"{video.stem}_{method}", overlay=False, progress=False,

@@ -155,6 +155,7 @@ def main(argv=None) -> int:
     problem = Problem(scene, obs, likelihood=cfg.likelihood.kind, sd_model=cfg.likelihood.sd_model,
                       engine=resolve_engine(cfg))
     kw = dict(n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples, jump=cfg.mh.jump,
+              independent=cfg.mh.independent,
               progress=False)
     records = []
     t = time.perf_counter()

@@ -29,13 +29,15 @@ class _Strict(BaseModel):
 class MHConfig(_Strict):
     """Random-walk Metropolis-Hastings: chains advanced together, warm-up and kept steps
     (``warmup_cnn``: warm-up when the chains start from the CNN, ``--init cnn``), and the
-    probability of a population-wide jump proposal (``jump``, :func:`~galileo_jax.inference.mh.run_mh`)."""
+    probabilities of a population-wide jump proposal (``jump``) and of an independence
+    proposal (``independent``, :func:`~galileo_jax.inference.mh.run_mh`)."""
 
     chains: int = Field(16, ge=2, le=1024)
     warmup: int = Field(300, ge=0)
     warmup_cnn: int = Field(100, ge=0)
     samples: int = Field(400, ge=10)
     jump: float = Field(0.5, ge=0.0, lt=1.0)
+    independent: float = Field(0.9, ge=0.0, lt=1.0)
 
 
 class SeedMHConfig(_Strict):
@@ -76,13 +78,12 @@ MAX_ENSEMBLE = 64
 
 #: mh's rollout ensemble where the settings name none (:func:`ensemble_for`). Measured
 #: (``benchmarks/results/mh_mixing.md``: the five videos where mh mixed worst, fit's other mh
-#: settings): worst R-hat per video 1.54 / 1.19 / 1.19 / 1.32 / 1.17 -> 1.12 / 1.07 / 1.07 /
-#: 1.08 / 1.07 with 4, smallest bulk ESS (median) 64 -> 155, at about 3.5x the time (median
-#: ESS per second about the same, 1.4); with 2: 1.21 / 1.14 / 1.07 / 1.18 / 1.17; with 8 no
-#: better than with 4 at twice its time. On the samplers benchmark's 10 easier videos it costs
-#: ESS per second (``benchmarks/results/samplers.md``: 1.44 against 5.12 recorded by an earlier
-#: version without it) for a worst R-hat of 1.14 instead of 1.53.
-MH_ENSEMBLE = 4
+#: settings, independence proposals on): worst R-hat per video 1.10 / 1.06 / 1.03 / 1.06 /
+#: 1.02 with 1, 1.05 / 1.02 / 1.02 / 1.02 / 1.03 with 2, 1.04 / 1.02 / 1.02 / 1.02 / 1.01 with
+#: 4; median smallest bulk ESS 379 / 817 / 773, median ESS per second 14.9 / 15.6 / 7.2. 2 is
+#: the least that brings every video to R-hat <= 1.05. (Before the independence proposals,
+#: 4 was the default: R-hat 1.07-1.12, ESS 155, 1.4 ESS per second.)
+MH_ENSEMBLE = 2
 
 
 class LikelihoodConfig(_Strict):
@@ -91,7 +92,7 @@ class LikelihoodConfig(_Strict):
     shifted by fractions of a physics step's travel
     (:func:`galileo_jax.physics.simulate.ensemble_offsets`), which smooths the likelihood's
     pseudo-random response to where in a step the impact falls; it costs that many times the
-    rollouts. None (default): the method's own, :func:`ensemble_for` (mh 4, the others 1: off)."""
+    rollouts. None (default): the method's own, :func:`ensemble_for` (mh 2, the others 1: off)."""
 
     kind: str = DEFAULT_KIND
     sd_model: float = Field(DEFAULT_SD_MODEL, ge=0)

@@ -116,10 +116,11 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
 
         if start is None:
             res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
-                         jump=cfg.mh.jump, progress=progress)
+                         jump=cfg.mh.jump, independent=cfg.mh.independent, progress=progress)
         else:
             res = run_mh(problem, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup_cnn, n_samples=cfg.mh.samples,
-                         jump=cfg.mh.jump, **mh_start_from_cnn(start, cfg.mh.chains), progress=progress)
+                         jump=cfg.mh.jump, independent=cfg.mh.independent, **mh_start_from_cnn(start, cfg.mh.chains),
+                         progress=progress)
         params, diag = _with_estimate(summary.summarize_mh(res, problem.space, k_sum), "median")
         flat = res.theta.reshape(-1, res.theta.shape[-1])
         post = Posterior(summary.posterior_draws(res.theta, problem.space, k_sum),
@@ -497,7 +498,7 @@ def run_joint_fit(inputs: list[tuple[Path, Scene]], cfg: FitConfig, *, method: s
         from galileo_jax.inference.mh import run_mh
 
         res = run_mh(joint, k_run, n_chains=cfg.mh.chains, n_warmup=cfg.mh.warmup, n_samples=cfg.mh.samples,
-                     jump=cfg.mh.jump, progress=progress)
+                     jump=cfg.mh.jump, independent=cfg.mh.independent, progress=progress)
         flat = res.theta.reshape(-1, res.theta.shape[-1])
         theta_best, draws = np.asarray(res.best_theta), draw_subset(flat, cfg.prediction.draws, k_draw)
     summ = summary.summarize_coordinates(res, method)

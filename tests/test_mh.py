@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from galileo_jax.inference.problem import BatchedAPI, ProblemData
-from galileo_jax.inference.mh import RWState, build_kernel, random_walk, run_mh
+from galileo_jax.inference.mh import IndependentProposal, RWState, build_kernel, random_walk, run_mh
 from galileo_jax.inference.seed_mh import run_seed_mh
 from galileo_jax.inference.summary import summarize_mh
 from galileo_jax.likelihood import make_likelihood
@@ -95,6 +95,52 @@ def test_mixture_proposal_keeps_the_target_and_crosses_modes():
     assert not (comp == 1).any() and (xs < 0).all()
 
 
+def test_independence_proposal_keeps_the_target():
+    """The independence component alone (weights (0, 1)), from a Student-t that is off centre
+    and too wide: with the Hastings ratio q(x) / q(x') the chains sample N(1, 0.5^2) x N(-1,
+    0.5^2); without it they would sample p q (mean pulled towards the proposal's centre by
+    about a tenth of an SD here, variance shrunk)."""
+    mean = jnp.array([1.0, -1.0])
+
+    def logp(x):
+        return -0.5 * jnp.sum(((x - mean) / 0.5) ** 2, axis=-1)
+
+    prop = IndependentProposal(jnp.array([0.5, -0.5]), 1.2 * jnp.eye(2), 5.0)
+    kernel = build_kernel()
+
+    def body(s, k):
+        s, info = kernel(k, s, logp, jnp.eye(2)[None], jnp.array([0.0, 1.0]), prop)
+        return s, (s.position, info.component)
+
+    state = RWState(jnp.zeros((512, 2)), jnp.full((512,), -jnp.inf))
+    _, (xs, comp) = jax.jit(lambda k: jax.lax.scan(body, state, jax.random.split(k, 1200)))(jax.random.key(5))
+    assert bool((comp == 1).all())
+    xs = np.asarray(xs[200:]).reshape(-1, 2)
+    assert np.allclose(xs.mean(0), mean, atol=0.02)
+    assert np.allclose(xs.std(0), 0.5, rtol=0.03)
+
+
+def test_run_mh_independence_proposals_mix_faster():
+    """On a correlated toy posterior, independence proposals (``independent=0.7``) leave
+    draws far less correlated than the walks alone (bulk ESS at least twice), at the same
+    posterior mean and SD."""
+    from galileo_jax.inference.summary import summarize_mh
+
+    mean, sd = np.array([0.2, 0.25, 0.33]), np.array([0.01, 0.03, 0.05])
+    toy = ToyProblem(mean, sd)
+    ess = {}
+    for v in (0.0, 0.7):
+        res = run_mh(toy, jax.random.key(0), n_warmup=300, n_samples=400, independent=v, progress=False)
+        th = res.theta.reshape(-1, 3)
+        assert np.all(np.abs(th.mean(0) - mean) < 0.3 * sd)
+        assert np.allclose(th.std(0), sd, rtol=0.2)
+        p = summarize_mh(res, toy.space)["parameters"]
+        ess[v] = min(p[n]["ess_bulk"] for n in ("k1", "k2", "phi"))
+    assert ess[0.7] > 2 * ess[0.0]
+    with pytest.raises(ValueError, match="independent"):
+        run_mh(toy, jax.random.key(0), independent=1.0)
+
+
 def test_random_walk_rejects_bad_scale():
     with pytest.raises(ValueError, match="scale"):
         random_walk(lambda x: -jnp.sum(x**2, -1), jnp.ones(3), dim=2)
@@ -124,7 +170,9 @@ def test_run_mh_on_toy_posterior():
     th = res.theta.reshape(-1, 3)
     assert np.all(np.abs(th.mean(0) - mean) < 0.3 * sd)
     assert np.allclose(th.std(0), sd, rtol=0.25)
-    assert 0.15 < res.acceptance.mean() < 0.5
+    # 9 proposals in 10 come from a t fitted to this Gaussian posterior: most are accepted
+    # (the walks alone, ``independent=0``, adapt to about 0.3)
+    assert 0.5 < res.acceptance.mean() < 0.95
     summ = summarize_mh(res, ToyProblem(mean, sd).space)
     assert set(summ["parameters"]) == {"k1", "k2", "phi", "m1", "m2"}
     for name in ("k1", "k2", "phi"):
@@ -151,7 +199,7 @@ def test_run_mh_rejects_bad_arguments():
 
 
 def test_mixing_warning_names_unmixed_parameters():
-    """R-hat above 1.1 on an identifiable sampled parameter gives one warning line naming it;
+    """R-hat above 1.05 on an identifiable sampled parameter gives one warning line naming it;
     unidentifiable masses and known values are not judged; the console summary prints it."""
     from galileo_jax.inference.summary import RHAT_LIMIT, mixing_warning
     from galileo_jax.report.console import _parameter_lines
@@ -160,9 +208,9 @@ def test_mixing_warning_names_unmixed_parameters():
               "k2": {"rhat": 1.64, "identifiable": True, "known": False, "interval90": [0.2, 0.4], "median": 0.3},
               "m1": {"rhat": 3.0, "identifiable": False, "known": False, "interval90": [0.1, 0.9], "median": 0.5}}
     text = mixing_warning(params)
-    assert RHAT_LIMIT == 1.1 and "k2 1.64" in text and "k1" not in text and "m1" not in text
+    assert RHAT_LIMIT == 1.05 and "k2 1.64" in text and "k1" not in text and "m1" not in text
     assert any(line.strip() == text for line in _parameter_lines(params))
-    params["k2"]["rhat"] = 1.05
+    params["k2"]["rhat"] = 1.04
     assert mixing_warning(params) is None
     assert not any("warning" in line for line in _parameter_lines(params))
 
