@@ -453,7 +453,7 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
         return jnp.asarray(np.stack([np.linalg.cholesky(cov), jump_chol]), jnp.float64)
 
     indep = None  # (mean, chol) of the independence proposal: none before the first estimate
-    recent: list[np.ndarray] = []  # the last chunks' draws at the current beta
+    recent: list[np.ndarray] = []  # the last untempered chunks' draws, (chains, chunk, d) each
 
     def weights_now():
         w = jump if jump_chol.any() else 0.0
@@ -490,7 +490,7 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
     for c in range(n_warm_chunks):
         new_beta = beta0 ** (1.0 - c / n_anneal) if c < n_anneal else 1.0
         state = set_beta(state, beta, new_beta)
-        prev_beta, beta = beta, new_beta
+        beta = new_beta
         state, (trace, info) = run_chunk(keys[c], state, chol_of(sigma, log_s), weights_now(), jnp.float64(beta))
         skip = 1 if c == 0 else 0  # the very first step leaves the -inf start: not a real move
         acc = np.asarray(info.acceptance_rate)[skip:]  # (chunk, chains)
@@ -507,12 +507,12 @@ def run_mh(problem, rng_key: jax.Array, *, n_chains: int = 16, n_warmup: int = 2
                 sigma = new * (geo(sigma) / geo(new))
         if jump > 0 and pop is not None and np.all(np.isfinite(pop)):
             jump_chol = np.linalg.cholesky(pop * RW_SCALE**2 / d + 1e-12 * np.eye(d))
-        if independent > 0 and beta == 1.0:  # the untempered posterior's draws only
-            recent = (recent if c > 0 and beta == prev_beta else [])[-(INDEPENDENT_CHUNKS - 1):] + [pos]
-            flat = np.concatenate(recent, axis=1).reshape(-1, d)
-            cov = np.atleast_2d(np.cov(flat, rowvar=False))
+        if independent > 0 and beta == 1.0:  # the untempered posterior's draws only (beta stays 1 once there)
+            recent = recent[-(INDEPENDENT_CHUNKS - 1):] + [pos]
+            draws = np.concatenate(recent, axis=1)
+            cov = _population_cov(draws)
             if np.all(np.isfinite(cov)) and np.linalg.eigvalsh(cov).min() > 0:
-                indep = (flat.mean(axis=0), np.linalg.cholesky(cov + 1e-12 * np.eye(d)))
+                indep = (draws.reshape(-1, d).mean(axis=0), np.linalg.cholesky(cov + 1e-12 * np.eye(d)))
         if beta == 1.0 and c < 0.75 * n_warm_chunks and np.isfinite(reset_threshold):
             ld = np.asarray(state.logdensity, np.float64)
             best = np.max(np.where(np.isfinite(ld), ld, -np.inf))
