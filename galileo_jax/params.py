@@ -13,7 +13,9 @@ Coordinates ``theta`` (the identifiable parameters, in the order of :attr:`Param
 * ``dt_release`` (s): the release time minus the tracker's estimate
   (``Observation.release_time``), uniform on +-``simulation.release_window`` (default 0.2 s),
   unless the scene sets ``simulation.fit_release: false``. The tracker estimates the release by
-  fitting constant acceleration from rest to the first frames; any effect that bends the early
+  fitting constant acceleration from rest to the first frames
+  (:func:`~galileo_jax.observe.profile.estimate_release_time`, also where a hand hides the
+  object at its release); any effect that bends the early
   motion (drag, an initial push) biases that estimate, which the physics then cannot absorb.
   Measured on a rendered video with quadratic drag (issue 3 note): the estimate was 13 ms
   early, and the profile RMSE at the TRUE physical parameters was 0.0081 m/s with the

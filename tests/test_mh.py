@@ -215,6 +215,38 @@ def test_mixing_warning_names_unmixed_parameters():
     assert not any("warning" in line for line in _parameter_lines(params))
 
 
+def test_nuisance_at_the_end_of_its_window_is_warned_of():
+    """A release offset or scale error estimated at the end of its window (world_62 of the
+    coverage benchmark: dt_release stopped at -0.2 s with the release hidden by a hand, and k1
+    came out 0.078 for 0.091) is marked in the summary and warned of in the console, naming
+    the setting to widen; one inside its window, and a friction at its prior's end, are not."""
+    from galileo_jax.inference.summary import edge_warning, point_parameters
+    from galileo_jax.report.console import _parameter_lines
+
+    scene = scene_from_dict({"name": "ramp_20", "ramp": {"angle_deg": 20, "length": 0.6}, "objects": [BOX1, BOX2],
+                             "camera": {"pixels_per_metre": 1692.9, "scale_tolerance": 0.03}})
+    space = ParamSpace.from_scene(scene)
+    names = list(space.names)
+    assert {"dt_release", "scale_error"} <= set(names)
+
+    def summary(**values):
+        theta = np.array([values.get(n, 0.5 * (lo + hi)) for n, lo, hi in zip(names, space.lower, space.upper)])
+        d = len(names)
+        return point_parameters(space, theta, np.full(d, 0.01), np.stack([theta - 0.01, theta + 0.01], 1),
+                                np.eye(d) * 1e-4)
+
+    w = space.upper[names.index("dt_release")]
+    params = summary(dt_release=-0.999 * w, scale_error=0.01, k1=space.upper[names.index("k1")])
+    assert params["dt_release"]["at_edge"] == "lower" and params["dt_release"]["window"] == [-w, w]
+    assert "at_edge" not in params["scale_error"] and "at_edge" not in params["k1"]
+    text = edge_warning(params)
+    assert "dt_release" in text and "simulation.release_window" in text and "scale_error" not in text
+    assert any(line.strip() == text for line in _parameter_lines(params))
+    params = summary(dt_release=0.0, scale_error=0.0299)
+    assert params["scale_error"]["at_edge"] == "upper" and "camera.scale_tolerance" in edge_warning(params)
+    assert edge_warning(summary(dt_release=0.05, scale_error=-0.02)) is None
+
+
 # ---------------------------------------------------------------------------- the seed's sampler
 class ToySeedProblem(BatchedAPI):
     """Profile = parameters held constant over time; observation at a known truth. Its own engine."""

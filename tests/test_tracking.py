@@ -819,6 +819,27 @@ def test_release_time_found_through_dropped_frames():
     assert estimate_release_time(s, fps, 0.3) == pytest.approx(t_r, abs=0.01)
 
 
+def test_release_time_found_behind_a_hand():
+    """An object hidden (not measured) from before its release until well into its slide (a
+    hand over it, as on the coverage benchmark's world_62: release 0.23 s, first measured
+    frame 0.57 s) gets its release from its last frames at rest and its motion after: the
+    estimate was pinned 3 frames before the first moving frame (0.47 s), out of reach of the
+    fit's +-0.2 s release window. Seen at rest in no frame (the distance then counts from the
+    first measured frame, already moving), the release is still where the motion's parabola
+    starts."""
+    from galileo_jax.observe.profile import estimate_release_time
+
+    fps, t_r = 30.0, 7 / 30.0
+    t = np.arange(60) / fps
+    s = 0.5 * 400.0 * np.clip(t - t_r, 0, None) ** 2
+    hidden = s.copy()
+    hidden[5:17] = np.nan
+    assert estimate_release_time(hidden, fps, 0.3) == pytest.approx(t_r, abs=0.01)
+    never_at_rest = s - s[17]  # the distance counts from the first measured frame (profile._travel)
+    never_at_rest[:17] = np.nan
+    assert estimate_release_time(never_at_rest, fps, 0.3) == pytest.approx(t_r, abs=0.01)
+
+
 def test_measurement_off_the_rough_track_and_lone_frames_are_dropped():
     """Where the rough pass left an object (it left the image, and its look was last matched
     on the scenery) the measurement's centroid can walk off onto another thing of its colour:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from galileo_jax.inference.summary import mixing_warning, optima_warning, profile_note, widening_note
+from galileo_jax.inference.summary import edge_warning, mixing_warning, optima_warning, profile_note, widening_note
 from galileo_jax.fit_report import FitReport, JointFitReport, identifiability_statement
 
 NOTES = {
@@ -32,8 +32,7 @@ def _parameter_lines(parameters: dict) -> list[str]:
         rhat = _fmt(p.get("rhat")) if p.get("rhat") is not None else ""
         ess = f"{p['ess_bulk']:.0f}" if p.get("ess_bulk") is not None else ""
         lines.append(f"  {name:<14}{_fmt(p.get('estimate', p.get('mean'))):>10}{iv:>22}{rhat:>8}{ess:>8}   {note}")
-    warning = mixing_warning(parameters)
-    return lines + ([f"  {warning}"] if warning else [])
+    return lines + [f"  {w}" for w in (mixing_warning(parameters), edge_warning(parameters)) if w]
 
 
 def _interval_warning_lines(diagnostics: dict) -> list[str]:
