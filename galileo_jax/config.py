@@ -60,6 +60,9 @@ class GradConfig(_Strict):
     #: CMA-ES generations (32 rollouts each) from the best LM end, then LM from the search's best
     #: (:func:`~galileo_jax.inference.grad.fit_grad`'s ``search_generations``); 0: no search.
     search_generations: int = Field(40, ge=0, le=1000)
+    #: Fit again from inside the window of a calibration nuisance (dt_release, scale_error) that
+    #: ended at one of its ends (:func:`~galileo_jax.inference.grad.from_inside`).
+    inside: bool = True
 
 
 class CNNConfig(_Strict):

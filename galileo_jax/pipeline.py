@@ -104,11 +104,11 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
 
         if start is None:
             res = fit_grad(problem, k_run, **grad_options(cfg), profile=cfg.grad.profile,
-                           search_generations=cfg.grad.search_generations)
+                           search_generations=cfg.grad.search_generations, inside=cfg.grad.inside)
         else:
             res = fit_grad(problem, k_run, **grad_start_from_cnn(start, problem.space, cfg),
                            jacobian=cfg.grad.jacobian, max_steps=cfg.grad.max_steps, profile=cfg.grad.profile,
-                           search_generations=cfg.grad.search_generations)
+                           search_generations=cfg.grad.search_generations, inside=cfg.grad.inside)
         params, diag, theta, draws = grad_estimate(res, problem.space, k_sum, cfg)
         return params, {**diag, **cnn_diag}, theta, draws, gauss_newton_posterior(res, problem.space, k_sum)
     if method == "mh":
@@ -435,7 +435,7 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
 
             # as a single fit does: the search and the profile check, per video, from the same key
             fits = [after_lm(res, problem, k_run, search_generations=cfg.grad.search_generations,
-                             profile=cfg.grad.profile, max_steps=cfg.grad.max_steps)
+                             profile=cfg.grad.profile, inside=cfg.grad.inside, max_steps=cfg.grad.max_steps)
                     for problem, res in zip(problems, fits)]
         except Exception as err:  # noqa: BLE001 - the batch failed: every video in it records why
             for j in members:

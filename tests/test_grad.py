@@ -134,6 +134,29 @@ def test_search_after_lm_only_lowers_the_cost_and_is_counted(problem_c, monkeypa
     assert summarize_grad(res, problem_c.space)["diagnostics"]["search"] == res.search
 
 
+def test_a_nuisance_stopped_at_its_window_end_is_fitted_again_from_inside(problem):
+    """A fit whose scale_error ended at an end of its window (here: held at -3% on a video whose
+    distances are 2% too large) is fitted again from inside the window (from_inside): the refit
+    is kept only because it lowers the cost, leaves the scale off the window's ends, and is
+    recorded; a fit with every nuisance inside is returned as it is."""
+    from galileo_jax.inference.grad import INSIDE_STARTS, from_inside
+    from galileo_jax.params import nuisances_at_edge
+
+    obs = problem.observation
+    prob = Problem(SCENE2.with_scale_tolerance(0.03), obs._replace(positions=obs.positions * 1.02,
+                                                                   profile=obs.profile * 1.02), engine="mujoco")
+    kw = dict(n_starts=1, n_screen=8, max_steps=15, init=np.array([0.2, 0.25, 1 / 3, 0.0]))
+    stuck = fit_grad(prob, jax.random.key(1), fixed={"scale_error": -0.03}, **kw)
+    assert list(nuisances_at_edge(prob.space, stuck.theta).values()) == ["lower"]
+    res = from_inside(stuck, prob, max_steps=15)
+    assert res.inside["nuisances"] == ["scale_error"] and res.inside["starts"] == len(INSIDE_STARTS)
+    assert res.inside["kept"] and res.cost < stuck.cost - 1.0 and res.inside["cost_drop"] > 1.0
+    assert not nuisances_at_edge(prob.space, res.theta)
+    assert summarize_grad(res, prob.space)["diagnostics"]["inside"] == res.inside
+    again = from_inside(res, prob, max_steps=15)
+    assert again is res
+
+
 def test_grad_rejects_bad_arguments(problem):
     with pytest.raises(ValueError, match="init"):
         fit_grad(problem, jax.random.key(0), init=np.array([0.2, 0.3]))

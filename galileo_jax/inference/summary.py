@@ -34,7 +34,7 @@ import numpy as np
 
 from galileo_jax.inference.grad import PROFILE_REFIT_GAIN
 from galileo_jax.observation import trace_names
-from galileo_jax.params import ParamSpace
+from galileo_jax.params import ParamSpace, nuisances_at_edge
 
 NOT_IDENTIFIABLE = ("not identifiable: velocities determine only phi = (m1 - m2) / (m1 + m2); "
                     "values are draws from the uniform mass prior given phi")
@@ -118,24 +118,17 @@ def mixing_warning(parameters: dict) -> str | None:
             "time), or compare with --method grad")
 
 
-#: Share of a calibration nuisance's window (``dt_release``, ``scale_error``) within which its
-#: estimate counts as at the window's end (:func:`edge_warning`).
-EDGE_SHARE = 0.02
-
-
 def _mark_edges(params: dict, space: ParamSpace) -> dict:
-    """Mark in place each calibration nuisance (kinds "release", "scale") whose estimate (its
-    ``median``) lies within :data:`EDGE_SHARE` of its window's width from an end: ``at_edge``
-    "lower" or "upper", and ``window`` [lower, upper] (s for dt_release, relative for
-    scale_error). Returns ``params``."""
-    for name, kind, lo, hi in zip(space.names, space.kinds, space.lower, space.upper):
-        entry = params.get(name)
-        if kind not in ("release", "scale") or entry is None or entry.get("known") or entry.get("median") is None:
-            continue
-        v, margin = float(entry["median"]), EDGE_SHARE * (hi - lo)
-        side = "lower" if v <= lo + margin else "upper" if v >= hi - margin else None
-        if side:
-            entry["at_edge"], entry["window"] = side, [float(lo), float(hi)]
+    """Mark in place each calibration nuisance whose estimate (its ``median``) lies at its
+    window's end (:func:`~galileo_jax.params.nuisances_at_edge`): ``at_edge`` "lower" or "upper",
+    and ``window`` [lower, upper] (s for dt_release, relative for scale_error). Returns ``params``."""
+    names = [n for n in space.names if n in params and not params[n].get("known")
+             and params[n].get("median") is not None]
+    theta = np.array([params[n]["median"] if n in names else 0.5 * (lo + hi)
+                      for n, lo, hi in zip(space.names, space.lower, space.upper)])
+    for j, side in nuisances_at_edge(space, theta).items():
+        if space.names[j] in names:
+            params[space.names[j]].update(at_edge=side, window=[float(space.lower[j]), float(space.upper[j])])
     return params
 
 
@@ -433,7 +426,9 @@ def summarize_grad(result, space: ParamSpace) -> dict:
     the intervals were checked against the profile likelihood (:attr:`GradResult.profile`),
     ``profile_check`` holds the check and each checked parameter its ``interval_method``
     ("profile likelihood" where the profile's ends were reported, else "gauss-newton"). Where
-    a CMA-ES search followed LM (:attr:`GradResult.search`), ``search`` holds its record.
+    a CMA-ES search followed LM (:attr:`GradResult.search`), ``search`` holds its record; where
+    a nuisance at its window's end was fitted again from inside it (:attr:`GradResult.inside`),
+    ``inside`` holds that record.
     """
     params = point_parameters(space, result.theta, result.sd, result.interval90, result.cov_theta,
                               getattr(result, "fixed", ()))
@@ -448,6 +443,8 @@ def summarize_grad(result, space: ParamSpace) -> dict:
                                             if n not in held and np.isfinite(f)}
     if getattr(result, "search", None) is not None:
         diagnostics["search"] = result.search
+    if getattr(result, "inside", None) is not None:
+        diagnostics["inside"] = result.inside
     profile = getattr(result, "profile", None)
     if profile is not None:
         diagnostics["profile_check"] = profile
