@@ -422,7 +422,8 @@ def from_inside(res: GradResult, problem, *, fd_step: float = DEFAULT_FD_STEP, r
                 best = better
     info = {"nuisances": [space.names[j] for j in edges], "starts": len(edges) * len(INSIDE_STARTS),
             "cost_drop": float(res.cost - best.cost), "kept": best is not res}
-    return best._replace(search=res.search, profile=res.profile, inside=info)
+    # a profile check of res (if one ran) was of its old end point: not carried over to a refit
+    return best._replace(search=res.search, inside=info)
 
 
 #: CMA-ES points per generation of the search after LM (:func:`searched`).
