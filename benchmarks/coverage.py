@@ -28,14 +28,17 @@ A method name ending ``@ensK`` (e.g. ``grad@ens8``) fits with ``likelihood.ensem
 one physics step).
 
     python benchmarks/coverage.py [--videos 100] [--methods grad,mh,cnn,grad+cnn,grad@ens8] [--work DIR]
-        [--rerun [--rerun-only grad/world,...]] [--families world,...]
+        [--rerun [--rerun-only grad/world,...]] [--families world,...] [--records-only mh,...]
+    python benchmarks/coverage.py --methods grad,grad@ens8,mh --records-only grad@ens8,mh --rerun \
+        --rerun-only grad/ramp_10,grad/ramp_20   # refit one method on some families, keep every row
 
 Writes ``benchmarks/results/coverage.{md,json}``; videos and per-video records go under
 ``--work`` (default ``benchmarks/results/coverage/``; videos not kept in git). Resumable: a video
 with a record is not fitted again (``--rerun`` fits again; ``--rerun-only`` limits that to the
 named method/family pairs, the others' records are read as they are; ``--keep-since`` keeps the
 records fitted since a time, to resume an interrupted rerun; ``--families`` fits only the named
-families' videos).
+families' videos; ``--records-only`` reads the named methods' records and never fits them, so a
+rerun of one method keeps the others' rows).
 """
 
 from __future__ import annotations
@@ -296,12 +299,16 @@ def main(argv=None) -> int:
     ap.add_argument("--families", default="", metavar="F,...",
                     help="fit only videos of these families (e.g. world); the others' records are read where "
                          "they exist")
+    ap.add_argument("--records-only", default="", metavar="M,...",
+                    help="methods whose existing records are read but that are never fitted here (e.g. "
+                         "grad@ens8,mh beside a grad rerun: the table keeps their rows)")
     ap.add_argument("--keep-since", default="", metavar="DATE",
                     help="with --rerun, keep records fitted on or after this UTC date or time (ISO, e.g. "
                          "2026-11-26T23:00): resumes an interrupted rerun")
     args = ap.parse_args(argv)
     only = {tuple(x.strip().split("/", 1)) for x in args.rerun_only.split(",") if x.strip()}
     families = {x.strip() for x in args.families.split(",") if x.strip()}
+    read_only = {x.strip() for x in args.records_only.split(",") if x.strip()}
     from tqdm import tqdm
 
     from galileo_jax.jaxcache import enable_compilation_cache
@@ -320,7 +327,7 @@ def main(argv=None) -> int:
             refit = args.rerun and (not only or (method, family) in only)
             if refit and args.keep_since and path.exists():  # ISO strings of one form sort as times
                 refit = json.loads(path.read_text()).get("fitted_utc", "") < args.keep_since
-            if (path.exists() and not refit) or (families and family not in families):
+            if (path.exists() and not refit) or (families and family not in families) or method in read_only:
                 if path.exists():
                     records.append(json.loads(path.read_text()))
                 continue
