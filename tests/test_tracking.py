@@ -885,6 +885,17 @@ def test_real_plain_clip_keeps_no_frame_after_its_object_left():
     assert not kept[t > 1.06].any(), np.flatnonzero(kept & (t > 1.06))
 
 
+def _square_look(colour, bg, half: float, size: int) -> Look:
+    """The clean :class:`Look` of a plain square (:func:`_square_frame`) on a plain background:
+    its matte at the centre of a ``size`` px frame, cropped to 31 px."""
+    alpha, _ = matte(_square_frame((size / 2, size / 2), half, colour, bg, size).astype(np.float32),
+                     np.full((size, size, 3), bg, np.float32), Palette(np.array([colour], np.float32), 14.0), 1.0)
+    lo = size // 2 - 15
+    template = np.ascontiguousarray(alpha[lo:lo + 31, lo:lo + 31])
+    return Look(Palette(np.array([colour], np.float32), 14.0), template, np.array([15.0, 15.0]),
+                float(template.sum()))
+
+
 def test_bridge_follows_an_object_the_rough_track_left():
     """Where the rough pass lost an object (its frames unmeasured from some frame on), the
     bridge follows it on from its own last measurements: a square sliding to rest is measured
@@ -895,11 +906,7 @@ def test_bridge_follows_an_object_the_rough_track_left():
 
     bg, colour, half, size = (200, 190, 180), (40, 160, 60), 6.0, 120
     background = ColourBackground(np.full((size, size, 3), bg, np.float32), 1.0)
-    alpha, _ = matte(_square_frame((60.0, 60.0), half, colour, bg, size).astype(np.float32), background.image,
-                     Palette(np.array([colour], np.float32), 14.0), 1.0)
-    template = np.ascontiguousarray(alpha[45:76, 45:76])
-    look = Look(Palette(np.array([colour], np.float32), 14.0), template, np.array([15.0, 15.0]),
-                float(template.sum()))
+    look = _square_look(colour, bg, half, size)
     x = 20.0 + np.cumsum(np.clip(4.0 - 0.2 * np.arange(30), 0.0, None))  # slows from 4 px/frame to rest
     truth = np.stack([x, np.full(30, 60.0)], axis=-1)
     frames = np.stack([_square_frame(p, half, colour, bg, size) for p in truth])
@@ -931,12 +938,7 @@ def test_a_lost_object_is_found_again_where_it_stopped():
     truth = np.stack([x, np.full(30, 60.0)], axis=-1)
     frames = np.stack([_square_frame(p, half, colour, bg, size) for p in truth])
     learned = ColourBackground(frames[-1].astype(np.float32), 1.0)  # the resting object learned as background
-    clean = np.full((size, size, 3), bg, np.float32)
-    alpha, _ = matte(_square_frame((60.0, 60.0), half, colour, bg, size).astype(np.float32), clean,
-                     Palette(np.array([colour], np.float32), 14.0), 1.0)
-    template = np.ascontiguousarray(alpha[45:76, 45:76])
-    look = Look(Palette(np.array([colour], np.float32), 14.0), template, np.array([15.0, 15.0]),
-                float(template.sum()))
+    look = _square_look(colour, bg, half, size)
     N, lost_at = len(truth), 12
     halves, angles = [np.array([half, half])], np.zeros((N, 1))
 
