@@ -966,6 +966,33 @@ def test_a_lost_object_is_found_again_where_it_stopped():
     assert lost.tolist() == [lost_at] and not valid[lost_at:, 0].any()
 
 
+def test_found_again_only_while_slowing_per_frame_after_a_gap():
+    """The slowing-to-rest rule of :func:`_stopped_where_lost` counts moves per frame: after a
+    frame in which nothing was found, the object's last step is its move per frame across the
+    gap, not the whole move. A square lost at 3 px/frame, missing from one frame and found
+    6 px on in the next (3 px/frame), is not followed onto a look-alike that then runs on at
+    7 px/frame (more than 3 + 1.5 px): it stays lost. Counting the 6 px as one step would
+    allow 7.5 px and follow the look-alike to the end."""
+    from galileo_jax.observe.matte import _stopped_where_lost
+
+    bg, colour, half, size, N, lost_at = (200, 190, 180), (40, 160, 60), 6.0, 120, 14, 8
+    x = np.array([20.0 + 3.0 * k for k in range(lost_at)] + [np.nan, 20.0 + 3.0 * (lost_at + 1)]
+                 + [20.0 + 3.0 * (lost_at + 1) + 7.0 * j for j in range(1, N - lost_at - 1)])
+    truth = np.stack([x, np.full(N, 60.0)], axis=-1)
+    frames = np.stack([_square_frame(p, half, colour, bg, size) if np.isfinite(p[0])
+                       else np.full((size, size, 3), bg, np.uint8) for p in truth])
+    background = ColourBackground(np.full((size, size, 3), bg, np.float32), 1.0)
+    pixels = np.full((N, 1, 2), 5.0)
+    pixels[:lost_at, 0] = truth[:lost_at]
+    quality = np.zeros((N, 1))
+    quality[:lost_at] = 0.95
+    valid = quality > 0.5
+    lost = _stopped_where_lost(frames, background, [[(truth[0], _square_look(colour, bg, half, size))]], pixels,
+                               quality, np.zeros((N, 1), bool), valid, np.array([lost_at]),
+                               [np.array([half, half])], np.zeros((N, 1)))
+    assert lost.tolist() == [lost_at] and not valid[lost_at:, 0].any()
+
+
 def test_objects_out_of_their_order_are_not_measured():
     """Two objects on one ramp cannot pass through each other: in the frames where object 1's
     measured centre is past object 2's (look-alikes whose identities a collision at speed

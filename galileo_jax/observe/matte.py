@@ -531,7 +531,8 @@ def _stopped_where_lost(frames, bg: ColourBackground, looks, pixels: np.ndarray,
                         keep_out=others)
             moved = float(np.linalg.norm(m.centre - at))
             if m.quality >= BRIDGE_QUALITY and moved <= (missed + 1) * step + STOP_SLACK_PX:
-                found[k], at, missed, step = m, m.centre, 0, moved
+                # the move per frame over the frames since the last measurement
+                found[k], at, step, missed = m, m.centre, moved / (missed + 1), 0
             else:
                 missed += 1
                 if missed >= coast:
