@@ -13,7 +13,8 @@ images:
 * the automatic choice: a textured object still goes through KLT (the two tracks cross-checked),
   a plain one through its colour, and ``tracker: features`` is obeyed;
 * the matte's alpha on a half-covered pixel, occluders, and the centre of a half-hidden object;
-* the rough pass on a motion-blurred look, and the cross-check of a KLT track left on the scenery.
+* the rough pass on a motion-blurred look, and the cross-check of a KLT track left on the scenery;
+* KLT's tether to the key frame's look: a drifted pose put back, and the frames it had wrong dropped.
 
 Skipped where no OpenGL context can be made. About 40 s in all.
 """
@@ -1157,3 +1158,78 @@ def test_looks_are_not_learned_where_a_hand_held_the_object():
     start = px[20]                                               # found in motion, frame 20
     ks = _clean_frames(px, good, 0, [np.array([5.5, 5.5])], speed, (240, 320), start)
     assert len(ks) >= 3 and not np.isin(ks, np.arange(10)).any(), ks
+
+
+def _textured_frame(centre, angle_deg: float, size=(160, 240), half: int = 16) -> np.ndarray:
+    """A 4 x 4 checker square (``half`` px half side; pink and brown) turned by ``angle_deg``
+    about its centre at ``centre`` (u, v) px, on a grey background; BGR uint8, resampled
+    bilinearly from a 4x finer drawing."""
+    s = 4
+    tile = np.full((2 * half * s, 2 * half * s, 3), (90, 90, 170), np.uint8)
+    q = half * s // 2
+    for a in range(4):
+        for b in range(4):
+            if (a + b) % 2:
+                tile[a * q:(a + 1) * q, b * q:(b + 1) * q] = (60, 50, 110)
+    H, W = size
+    c = (np.asarray(centre, float) + 0.5) * s - 0.5
+    M = cv2.getRotationMatrix2D((half * s - 0.5, half * s - 0.5), -angle_deg, 1.0)
+    M[:, 2] += c - (half * s - 0.5)
+    big = cv2.warpAffine(tile, M, (W * s, H * s), flags=cv2.INTER_LINEAR, borderValue=(0, 0, 0))
+    alpha = cv2.warpAffine(np.full(tile.shape[:2], 1.0, np.float32), M, (W * s, H * s), flags=cv2.INTER_LINEAR)
+    img = big.astype(np.float32) * alpha[..., None] + np.float32(150) * (1 - alpha[..., None])
+    return np.clip(np.rint(cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)), 0, 255).astype(np.uint8)
+
+
+def test_tether_puts_a_drifted_pose_back_on_the_key_frames_look():
+    """A KLT pose that drifted (rotation 9 degrees short, centre 12 px off: the tracking
+    benchmark's checker cube turning onto the floor under motion blur) is searched again
+    against the object's look in its first frame and put back within 0.15 px and 0.5 degree
+    (moved); a pose that is right stays within 0.05 px (refined, not moved); with the object
+    gone (background only) the pose is left as it was."""
+    from galileo_jax.observe.klt import _Track, _tether
+    from galileo_jax.observe.tether import key_look
+    from galileo_jax.observe.tracks import Window, as_gray, rotation
+
+    start, turn, at = np.array([60.0, 70.0]), 23.0, np.array([170.3, 90.6])
+    gray0 = as_gray(_textured_frame(start, 0.0))
+    now = as_gray(_textured_frame(at, turn))
+    win = Window((16.0, 16.0), 0.0)
+
+    def track(angle_deg, centre):
+        R = rotation(math.radians(angle_deg))
+        tr = _Track(start.copy(), win, R=R, t=np.asarray(centre, float) - R @ start)
+        tr.key = key_look(gray0, tr.corners(R=np.eye(2), t=np.zeros(2), shrink=0.8))
+        tr.pts = np.array([centre]) + [[3.0, 2.0]]
+        return tr
+
+    tr = track(turn - 9.0, at + [12.0, -1.0])
+    rho, moved = _tether(tr, now, [])
+    assert moved and rho > 0.9
+    assert np.linalg.norm(tr.centre - at) < 0.15, tr.centre - at
+    assert abs(math.degrees(math.atan2(tr.R[1, 0], tr.R[0, 0])) - turn) < 0.5
+    np.testing.assert_allclose(tr.ref, (tr.pts - tr.t) @ tr.R)  # features' frame-0 positions taken again
+    tr = track(turn, at)
+    rho, moved = _tether(tr, now, [])
+    assert not moved and rho > 0.95 and np.linalg.norm(tr.centre - at) < 0.05
+    tr = track(turn - 9.0, at + [12.0, -1.0])
+    before = tr.centre.copy()
+    rho, moved = _tether(tr, np.full_like(now, 150), [])
+    assert not moved and np.all(tr.centre == before)
+
+
+def test_frames_between_a_confirmed_pose_and_a_corrected_one_are_dropped(monkeypatch):
+    """When the tether corrects a KLT pose (in frame 7 here), the frames since the last one
+    whose pose the key frame's look confirmed (frame 3) had a pose wrong by an unknown amount:
+    they are dropped (invalid, quality 0), and every other frame is kept."""
+    from galileo_jax.observe import klt
+
+    N = 10
+    frames = np.stack([_textured_frame((60.0 + 2.0 * k, 70.0), 0.0) for k in range(N)])
+    script = {k: (0.9, False) for k in range(N)}
+    script.update({4: (0.4, False), 5: (0.3, False), 6: (0.2, False), 7: (0.95, True)})
+    calls = iter(range(1, N))
+    monkeypatch.setattr(klt, "_tether", lambda tr, gray, others: script[next(calls)])
+    tracks = klt.track_objects(frames, [[60.0, 70.0]], [((16.0, 16.0), 0.0)])
+    assert tracks.valid[:, 0].tolist() == [True] * 4 + [False] * 3 + [True] * 3
+    assert np.all(tracks.quality[4:7, 0] == 0.0) and np.all(tracks.quality[7:, 0] > 0.0)

@@ -11,6 +11,12 @@ onto the floor). Features are re-detected when too few remain, only on pixels un
 background (:func:`~galileo_jax.observe.tracks.background_model`); a track that is lost inside
 the image, or stops dead on the scenery while the object moves on, raises
 :class:`~galileo_jax.errors.TrackingError`.
+
+A textured object's track is held to its look in frame 0 (:func:`_tether`,
+:mod:`galileo_jax.observe.tether`): each frame's pose is refined against it by ECC, and where
+the look no longer matches at the track's pose (a rotation gone wrong in the motion-blurred
+frames of a turn) the pose is searched again; the frames since the last pose the look
+confirmed are then dropped.
 """
 
 from __future__ import annotations
@@ -24,8 +30,9 @@ import cv2
 import numpy as np
 
 from galileo_jax.errors import TrackingError
-from galileo_jax.observe.tracks import (Tracks, Window, as_gray, inside_fraction, lost_message, polygon_mask, rotation,
-                                       window_corners)
+from galileo_jax.observe.tether import Look, crop_look, key_look, look_ncc, realign, refine
+from galileo_jax.observe.tracks import (Tracks, Window, as_gray, has_texture, inside_fraction, lost_message,
+                                       polygon_mask, rotation, window_corners)
 
 
 #: Forward-backward KLT error (px) above which a feature is dropped.
@@ -36,6 +43,15 @@ RESIDUAL_MIN = 1.0
 DEFAULT_HALF = 15.0
 #: Agreeing features that make a measurement of quality 1 (fewer: proportionally less).
 FULL_FEATURES = 8
+#: Correlation of the key frame's look with a frame at the track's pose below which the pose
+#: is searched again (:func:`_tether`; motion blur alone lowers it to 0.3-0.5 at 20-45 px/frame).
+TETHER_CHECK = 0.5
+#: Correlation at the track's pose from which a frame's pose counts as confirmed by the look.
+TETHER_TRUST = 0.6
+#: Correlation the searched pose needs to replace the track's, and by how much it must beat it.
+TETHER_MATCH, TETHER_GAIN = 0.85, 0.3
+#: Smallest move (px) of the centre for which a searched pose replaces the track's.
+TETHER_SHIFT = 1.0
 
 
 # ---------------------------------------------------------------------------- rigid fit
@@ -94,7 +110,8 @@ class _Track:
     t: np.ndarray = field(default_factory=lambda: np.zeros(2))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
     alive: bool = True
-    look: "_Look | None" = None
+    look: Look | None = None
+    key: Look | None = None
     strikes: int = 0
     recent_speed: float = 0.0
 
@@ -261,14 +278,6 @@ def _step(tr: _Track, f0: "_Frame", f1: "_Frame", others, prm: _Params, keep_out
 # ---------------------------------------------------------------------------- stuck tracks
 
 
-class _Look(NamedTuple):
-    """An object's appearance in frame 0: grey crop from ``lo`` (px) and its footprint."""
-
-    lo: np.ndarray
-    template: np.ndarray
-    mask: np.ndarray
-
-
 def _fg_fraction(gray: np.ndarray, background: np.ndarray, corners: np.ndarray) -> float:
     """Fraction of the polygon's pixels that differ from the background."""
     lo = np.maximum(np.floor(corners.min(0)).astype(int) - 2, 0)
@@ -282,22 +291,13 @@ def _fg_fraction(gray: np.ndarray, background: np.ndarray, corners: np.ndarray) 
     return float((d[inside] > max(12.0, 4.0 * 1.4826 * float(np.median(d)))).mean())
 
 
-def _look(gray: np.ndarray, tr: _Track, background) -> _Look | None:
+def _look(gray: np.ndarray, tr: _Track, background) -> Look | None:
     """The object's frame-0 appearance, or None when it cannot serve (no background, or
     the background holds the object itself at its start)."""
     corners = tr.corners(shrink=0.8)
     if background is None or _fg_fraction(gray, background, corners) < 0.3:
         return None
-    lo = np.maximum(np.floor(corners.min(0)).astype(int), 0)
-    hi = np.minimum(np.ceil(corners.max(0)).astype(int) + 1, gray.shape[::-1])
-    crop = gray[lo[1]:hi[1], lo[0]:hi[0]].astype(np.float32)
-    return _Look(lo, crop, polygon_mask(crop.shape, corners, lo) > 0)
-
-
-def _ncc(a: np.ndarray, b: np.ndarray) -> float:
-    a, b = a - a.mean(), b - b.mean()
-    den = math.sqrt(float((a * a).sum() * (b * b).sum()))
-    return float((a * b).sum() / den) if den > 0 else 0.0
+    return crop_look(gray, corners)
 
 
 def _on_background(gray: np.ndarray, tr: _Track, prm: _Params) -> bool:
@@ -306,11 +306,45 @@ def _on_background(gray: np.ndarray, tr: _Track, prm: _Params) -> bool:
     object moved on). Only asked when a fast track suddenly stops."""
     if tr.look is None or _fg_fraction(gray, prm.background, tr.corners(shrink=0.8)) >= 0.15:
         return False
-    look = tr.look
-    M = np.hstack([tr.R, (tr.R @ look.lo + tr.t)[:, None]])  # frame-0 crop coords -> this frame
-    h, w = look.template.shape
-    now = cv2.warpAffine(gray.astype(np.float32), M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
-    return _ncc(now[look.mask], look.template[look.mask]) < 0.4
+    return look_ncc(gray, tr.look, tr.R, tr.t) < 0.4
+
+
+def _tether(tr: _Track, gray: np.ndarray, others: list[_Track]) -> tuple[float, bool]:
+    """Hold the track to the object's key-frame look (:mod:`galileo_jax.observe.tether`).
+
+    Where the look correlates with the frame at the track's pose by at least
+    :data:`TETHER_CHECK`, the pose is refined (:func:`~galileo_jax.observe.tether.refine`) and
+    kept if it correlates better and moves the centre by at most 1 px. Where it correlates by
+    less, the pose is searched again (:func:`~galileo_jax.observe.tether.realign`,
+    shifts up to the object's smaller half size); a pose that correlates by at least
+    :data:`TETHER_MATCH`, :data:`TETHER_GAIN` better than the track's, moves the centre by
+    at least :data:`TETHER_SHIFT` px and does not overlap another object's footprint by more
+    than a quarter replaces it, and the features' frame-0 positions are taken again under it.
+
+    Returns:
+        ``(ncc, moved)``: the correlation at the pose now kept, and whether it was replaced.
+    """
+    rho = look_ncc(gray, tr.key, tr.R, tr.t)
+    if rho >= TETHER_CHECK:
+        near = refine(gray, tr.key, tr.R, tr.t)
+        if near is not None and near[0] > rho and np.linalg.norm(near[1] @ tr.centre0 + near[2] - tr.centre) <= 1.0:
+            _set_pose(tr, near[1], near[2])
+            return near[0], False
+        return rho, False
+    top, R, t = realign(gray, tr.key, tr.R, tr.t, tr.centre0, min(tr.window.half))
+    if top < max(TETHER_MATCH, rho + TETHER_GAIN) or np.linalg.norm(R @ tr.centre0 + t - tr.centre) < TETHER_SHIFT:
+        return rho, False
+    corners = tr.corners(R=R, t=t)
+    if any(o.alive and _overlap(corners, o.corners()) > 0.25 for o in others):
+        return rho, False
+    _set_pose(tr, R, t)
+    return top, True
+
+
+def _set_pose(tr: _Track, R: np.ndarray, t: np.ndarray) -> None:
+    """Give the track the pose x -> R x + t, its features' frame-0 positions taken again under it."""
+    tr.R, tr.t = R, t
+    tr.ref = (tr.pts - t) @ R  # inverse of x -> R x + t
 
 
 def _stuck_message(i: int, k: int, fps: float | None) -> str:
@@ -380,7 +414,9 @@ def track_objects(frames: np.ndarray, start_pixels, windows=None, *, background:
 
     Returns:
         :class:`Tracks` with (N, n, 2) pixels, (N, n) valid flags and feature counts. An
-        object that leaves the image is marked invalid from then on.
+        object that leaves the image is marked invalid from then on; so are the frames
+        between a pose the key frame's look confirmed and one the tether corrected
+        (:func:`_tether`).
 
     Raises:
         TrackingError: no features at an object's start pixel, or a track lost inside the
@@ -397,6 +433,9 @@ def track_objects(frames: np.ndarray, start_pixels, windows=None, *, background:
         if prelude is not None and len(prelude):
             _keep_resting(tr, f0.image, prelude, prm)
         tr.look = _look(f0.gray, tr, prm.background)
+        # a plain object's look is its outline alone, too little to hold a pose to
+        textured = has_texture(f0.gray, tr.centre, tr.window.half, tr.window.angle)
+        tr.key = key_look(f0.gray, tr.corners(shrink=0.8)) if textured else None
         if len(tr.pts) < min_features:
             raise TrackingError(f"object {i + 1}: only {len(tr.pts)} trackable features around its start pixel "
                                 f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {first_frame}; "
@@ -405,6 +444,8 @@ def track_objects(frames: np.ndarray, start_pixels, windows=None, *, background:
     valid = np.zeros((N, n), bool)
     count = np.zeros((N, n), int)
     pixels[0], valid[0], count[0] = start, True, [len(t.pts) for t in tracks]
+    trusted = np.zeros(n, int)  # last frame whose pose the key frame's look confirmed
+    doubtful = np.zeros((N, n), bool)  # frames between a confirmed pose and a corrected one
     steps = range(1, N)
     if progress:
         from tqdm import tqdm
@@ -423,9 +464,16 @@ def track_objects(frames: np.ndarray, start_pixels, windows=None, *, background:
                 if _overlap(tracks[i].corners(), tracks[j].corners()) <= 0.25:
                     break
         for i, tr in enumerate(tracks):
+            if tr.alive and tr.key is not None and count[k, i] > 0:
+                rho, moved = _tether(tr, f1.gray, tracks[:i] + tracks[i + 1:])
+                if moved:  # the frames since the last confirmed pose had the wrong one, by how much unknown
+                    doubtful[trusted[i] + 1:k, i] = True
+                if moved or rho >= TETHER_TRUST:
+                    trusted[i] = k
             valid[k, i] = tr.alive and valid[k - 1, i]
             pixels[k, i] = tr.centre if valid[k, i] else pixels[k - 1, i]
         f0 = f1
+    valid &= ~doubtful
     return Tracks(pixels, valid, count, np.where(valid, np.minimum(count / FULL_FEATURES, 1.0), 0.0))
 
 

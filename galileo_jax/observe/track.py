@@ -39,7 +39,7 @@ from galileo_jax.errors import TrackingError
 from galileo_jax.observe.klt import track_objects
 from galileo_jax.observe.matte import track_matte
 from galileo_jax.observe.outline import track_circles
-from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, footprint,
+from galileo_jax.observe.tracks import (QUALITY_MIN, Tracks, Window, as_gray, estimate_noise_sd, has_texture,
                                         object_windows, path_direction, path_tilts, polygon_mask, window_corners)
 from galileo_jax.scene import Scene
 
@@ -63,14 +63,6 @@ STEADIER = 0.8
 #: the tracking benchmark), a jump was 10-200 px.
 STEP_PX = 4.0
 STEP_QUALITY = 0.8
-#: Smallest eigenvalue of the structure tensor (``cv2.cornerMinEigenVal``, block 5, on 8-bit
-#: grey) that counts as texture: a plain patch with pixel noise of SD 6 grey levels stays
-#: below 0.0006, a 10 px checker of contrast 70 reaches 0.02 (measured).
-TEXTURE_EIGENVALUE = 0.002
-#: Share of the object's inner pixels (its footprint shrunk to 60%, and at least
-#: :data:`TEXTURE_MARGIN` px inside its outline) that must be textured for KLT to follow it.
-TEXTURE_SHARE = 0.1
-TEXTURE_MARGIN = 4.0
 
 
 class SceneTracks(NamedTuple):
@@ -104,32 +96,6 @@ def is_round(scene: Scene, i: int) -> bool:
 def tracker_of(scene: Scene, i: int) -> str:
     """Object ``i``'s ``tracker`` with "outline" for a sphere under "auto" (:func:`is_round`)."""
     return "outline" if is_round(scene, i) else scene.objects[i].tracker
-
-
-def has_texture(frame: np.ndarray, centre, half, angle: float) -> bool:
-    """Whether an object shows texture KLT can follow inside its outline: at least
-    :data:`TEXTURE_SHARE` of the pixels of its footprint shrunk to 60% and
-    :data:`TEXTURE_MARGIN` px inside its outline (``centre`` (2,) px, ``half`` (along, across)
-    px, tilt ``angle`` rad) have a structure-tensor eigenvalue above
-    :data:`TEXTURE_EIGENVALUE` (Shi & Tomasi 1994's corner measure); an object too small to
-    leave such a region has none."""
-    gray = as_gray(frame)
-    r = int(np.ceil(np.hypot(*half))) + 4
-    c = np.asarray(centre, float)
-    lo = np.maximum(np.floor(c - r).astype(int), 0)
-    hi = np.minimum(np.ceil(c + r).astype(int) + 1, gray.shape[::-1])
-    crop = gray[lo[1]:hi[1], lo[0]:hi[0]]
-    if crop.shape[0] < 7 or crop.shape[1] < 7:
-        return False
-    # well inside the outline: the 5 px block of the corner measure must not reach the edges
-    inner_half = np.minimum(0.6 * np.asarray(half, float), np.asarray(half, float) - TEXTURE_MARGIN)
-    if inner_half.min() < 2.0:
-        return False  # too small to hold KLT features inside it
-    inner = footprint(crop.shape, c, inner_half, angle, offset=lo)
-    if inner.sum() < 4:
-        return False
-    eig = cv2.cornerMinEigenVal(np.ascontiguousarray(crop), 5)
-    return bool((eig[inner] > TEXTURE_EIGENVALUE).mean() >= TEXTURE_SHARE)
 
 
 def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibration, *, start_frame: int = 0,
