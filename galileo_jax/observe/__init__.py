@@ -3,7 +3,8 @@
 * :mod:`.video`: :func:`read_video` (the only file I/O here).
 * :mod:`.tracks`: what trackers return (:class:`Tracks`), object footprints
   (:class:`Window`, :func:`object_windows`) and the grey :func:`background_model`.
-* :mod:`.klt`: :func:`track_objects`, KLT tracks of textured objects.
+* :mod:`.klt`: :func:`track_objects`, KLT tracks of textured objects, held to their look in
+  the start frame by :mod:`.tether`.
 * :mod:`.matte`: :func:`track_matte`, objects without texture by their colour matte: its
   colour model in :mod:`.colour` (background, colours, the matte), one frame's centre in
   :mod:`.measure`, the rough pass that finds the object first in :mod:`.rough`.

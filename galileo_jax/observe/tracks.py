@@ -7,6 +7,7 @@
 * :func:`footprint`, :func:`footprints_along`, :func:`visible_fraction`, :func:`crop_box`,
   :func:`weighted_centroid`: an object's footprint in pixels, and the crops around it.
 * :func:`estimate_noise_sd`: a track's noise SD from its third differences.
+* :func:`has_texture`: whether an object shows texture KLT can follow inside its outline.
 * :func:`object_windows`, :func:`path_direction`, :func:`expected_start_pixels`: where the
   scene's objects appear in the image and which way they start to move.
 
