@@ -324,6 +324,7 @@ def _tether(tr: _Track, gray: np.ndarray, others: list[_Track]) -> tuple[float, 
     Returns:
         ``(ncc, moved)``: the correlation at the pose now kept, and whether it was replaced.
     """
+    gray = np.asarray(gray, np.float32)  # once, for every comparison below
     rho = look_ncc(gray, tr.key, tr.R, tr.t)
     if rho >= TETHER_CHECK:
         near = refine(gray, tr.key, tr.R, tr.t)
