@@ -1160,6 +1160,34 @@ def test_looks_are_not_learned_where_a_hand_held_the_object():
     assert len(ks) >= 3 and not np.isin(ks, np.arange(10)).any(), ks
 
 
+def test_a_look_learned_at_a_wrong_tilt_is_left_out():
+    """A look is learned at the tilt the track gives the object in that frame. Where the
+    object lay at another (turning from the ramp onto the floor), its template's outline is
+    turned from the footprint's axes: such a look is left out, and a square's outline turned
+    by 12 degrees reads as 12 (a disc has no direction: 0)."""
+    from galileo_jax.observe.matte import LOOK_TURN_MAX, _learn_looks, _outline_turn
+
+    bg, colour, half, size = (200, 190, 180), (40, 160, 60), 10.0, 120
+    look = _square_look(colour, bg, half, size)
+    assert _outline_turn(look.template) < math.radians(1.0)
+    rot = cv2.getRotationMatrix2D((15.0, 15.0), 12.0, 1.0)
+    turned = cv2.warpAffine(look.template, rot, look.template.shape[::-1], flags=cv2.INTER_LINEAR)
+    assert abs(_outline_turn(turned) - math.radians(12.0)) < math.radians(1.5)
+    disc = np.zeros((31, 31), np.float32)
+    cv2.circle(disc, (15, 15), 10, 1.0, -1)
+    assert _outline_turn(disc) == 0.0
+
+    background = ColourBackground(np.full((size, size, 3), bg, np.float32), 1.0)
+    px = np.array([[20.0 + 8.0 * k, 60.0] for k in range(10)])
+    frames = np.stack([_square_frame(p, half, colour, bg, size) for p in px])
+    angles = np.zeros(10)
+    angles[7:] = math.radians(15.0)  # the track's tilt wrong in the last three frames
+    looks = _learn_looks(frames, background, px, np.arange(10), np.array([half, half]), angles)
+    taken = [int(np.argmin(np.linalg.norm(px - p, axis=1))) for p, _ in looks]
+    assert len(looks) >= 3 and max(taken) < 7, taken
+    assert all(_outline_turn(lk.template) <= LOOK_TURN_MAX for _, lk in looks)
+
+
 def _textured_frame(centre, angle_deg: float, size=(160, 240), half: int = 16) -> np.ndarray:
     """A 4 x 4 checker square (``half`` px half side; pink and brown) turned by ``angle_deg``
     about its centre at ``centre`` (u, v) px, on a grey background; BGR uint8, resampled
