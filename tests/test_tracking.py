@@ -1188,6 +1188,37 @@ def test_a_look_learned_at_a_wrong_tilt_is_left_out():
     assert all(_outline_turn(lk.template) <= LOOK_TURN_MAX for _, lk in looks)
 
 
+def test_klt_starts_again_from_the_colour_tracks_centre():
+    """KLT reports the point its features carry from the start pixel; one off the object's
+    centre turns about it at the ramp's foot. Where the colour track measured the first frames
+    well and its offset from KLT's point is steady there, KLT's start pixel moves by that
+    offset; not where the offsets scatter (a turn already), the offset is under 1 px, more than
+    the object's smaller half size, or the colour track measured too few of those frames."""
+    from galileo_jax.observe.track import _centred_starts
+    from galileo_jax.observe.tracks import Tracks, Window
+
+    N, k0 = 20, 3
+    klt_px = np.stack([40.0 + 6.0 * np.arange(N), 50.0 + 2.0 * np.arange(N)], axis=-1)
+    tr = Tracks(klt_px[:, None], np.ones((N, 1), bool), np.full((N, 1), 8), np.ones((N, 1)))
+    start = klt_px[k0][None]
+    wins = [Window((14.0, 14.0), 0.0)]
+    rng = np.random.default_rng(0)
+
+    def colour(offset, quality=0.9, scatter=0.2):
+        px = klt_px + offset + rng.normal(0.0, scatter, (N, 2))
+        return {0: (px, np.ones(N, bool), np.full(N, quality))}
+
+    got = _centred_starts(start, tr, colour([-8.0, -3.0]), [0], k0, wins)
+    assert got is not None and np.linalg.norm(got[0] - (start[0] + [-8.0, -3.0])) < 0.3, got
+    jumpy = colour([-8.0, -3.0])
+    jumpy[0][0][k0 + 2] += [2.5, 0.0]  # one of the first five frames off by 2.5 px
+    assert _centred_starts(start, tr, jumpy, [0], k0, wins) is None
+    assert _centred_starts(start, tr, colour([0.5, 0.3]), [0], k0, wins) is None
+    assert _centred_starts(start, tr, colour([16.0, 0.0]), [0], k0, wins) is None
+    assert _centred_starts(start, tr, colour([-8.0, -3.0], quality=0.5), [0], k0, wins) is None
+    assert _centred_starts(start, tr, {}, [0], k0, wins) is None
+
+
 def _textured_frame(centre, angle_deg: float, size=(160, 240), half: int = 16) -> np.ndarray:
     """A 4 x 4 checker square (``half`` px half side; pink and brown) turned by ``angle_deg``
     about its centre at ``centre`` (u, v) px, on a grey background; BGR uint8, resampled

@@ -63,6 +63,10 @@ STEADIER = 0.8
 #: the tracking benchmark), a jump was 10-200 px.
 STEP_PX = 4.0
 STEP_QUALITY = 0.8
+#: Colour measurements (of at least :data:`CENTRE_QUALITY`) in the first frames of a KLT track
+#: that place KLT's start pixel at the object's centre (:func:`_centred_starts`).
+CENTRE_FRAMES = 5
+CENTRE_QUALITY = 0.8
 
 
 class SceneTracks(NamedTuple):
@@ -177,6 +181,13 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
             klt.remove(i)
             continue
         parts.update({i: tuple(f[:, j] for f in tr) for j, i in enumerate(klt)})
+        centred = _centred_starts(start, tr, colour, klt, start_frame, wins)
+        if centred is not None:  # again from the objects' centres
+            try:
+                tr = _both_ways(track_objects, frames, centred[klt], [wins[i] for i in klt], **kw)
+                parts.update({i: tuple(f[:, j] for f in tr) for j, i in enumerate(klt)})
+            except TrackingError:
+                pass  # the first tracks stand
         break
     for i in range(n):
         if methods[i] == "colour":
@@ -196,6 +207,37 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
                                           probation=on_probation)
     cut = [i for i in range(n) if methods[i] != "outline"]
     return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
+
+
+def _centred_starts(start: np.ndarray, tr: Tracks, colour: dict, ids: list[int], start_frame: int, wins
+                    ) -> np.ndarray | None:
+    """(n, 2) start pixels at the objects' centres for KLT, or None where none moves.
+
+    KLT reports the point its features' rigid motion carries from the start pixel; a start
+    pixel off the object's centre turns about it where the object turns at the ramp's foot
+    (measured: checker_persp_960x540_blur_0, a start pixel found while the hand was leaving
+    lay 11 px from the near face's centre; after the turn of about 20 degrees its point was
+    2-3.4 px off). Where the colour track measured object ``ids[j]`` with quality >=
+    :data:`CENTRE_QUALITY` in the first :data:`CENTRE_FRAMES` frames from ``start_frame`` in
+    which KLT's track ``tr`` (its column j) is valid too, and the offset from KLT's point to the
+    colour centre is the same in all of them (within 1 px of their median: no turn yet),
+    between 1 px and the object's smaller half size, the start pixel moves by that offset."""
+    out = np.array(start, float)
+    moved = False
+    for j, i in enumerate(ids):
+        if i not in colour:
+            continue
+        px, valid, quality = colour[i][:3]
+        ks = [k for k in range(start_frame, len(px))
+              if tr.valid[k, j] and valid[k] and quality[k] >= CENTRE_QUALITY][:CENTRE_FRAMES]
+        if len(ks) < CENTRE_FRAMES:
+            continue
+        offsets = px[ks] - tr.pixels[ks, j]
+        d = np.median(offsets, axis=0)
+        if np.abs(offsets - d).max() <= 1.0 and 1.0 <= float(np.linalg.norm(d)) <= min(wins[i].half):
+            out[i] += d
+            moved = True
+    return out if moved else None
 
 
 def _in_scene(err: TrackingError, ids: list[int]) -> TrackingError:
