@@ -37,6 +37,7 @@ TEXTURE_EIGENVALUE = 0.002
 TEXTURE_SHARE = 0.1
 TEXTURE_MARGIN = 4.0
 
+
 class Tracks(NamedTuple):
     """Tracked image positions.
 
