@@ -32,7 +32,7 @@ from galileo_jax.errors import GalileoError
 from galileo_jax.observe import observe
 from galileo_jax.observe.klt import _Params, _klt
 from galileo_jax.observe.colour import ColourBackground, Look, Palette, matte
-from galileo_jax.observe.measure import measure
+from galileo_jax.observe.measure import STREAK_SPEED, measure, template_length
 from galileo_jax.observe.tracks import footprint
 from galileo_jax.observe.tracks import frame_median
 from galileo_jax.scene import load_scene, scene_from_dict
@@ -289,6 +289,73 @@ def test_measure_centroid_and_hidden_part():
     m = measure(hidden, background, look, truth + 1.0, (half, half), 0.0)
     assert np.linalg.norm(m.centre - truth) < 0.2, m
     assert m.aligned and 0.5 < m.quality < 0.85
+
+
+def _streak_frame(centre, half, colour, side_colour, side_width, side_right: bool, blur, bg, size, n=32):
+    """A plain square moving ``blur`` px along u during the exposure (``n`` anti-aliased
+    sub-frames averaged), its mid-exposure centre at ``centre``, with a side face of
+    ``side_width`` px in ``side_colour`` beside its right or left edge (as a perspective camera
+    shows the face that looks towards the image centre)."""
+    s = 4
+    acc = np.zeros((size, size, 3))
+    for j in range(n):
+        c = (np.array([centre[0] + blur * ((j + 0.5) / n - 0.5), centre[1]]) + 0.5) * s - 0.5
+        face, side = np.zeros((size * s, size * s), np.uint8), np.zeros((size * s, size * s), np.uint8)
+        corners = np.round(c - half * s).astype(int), np.round(c + half * s).astype(int)
+        cv2.rectangle(face, tuple(corners[0]), tuple(corners[1]), 255, -1)
+        x0 = c[0] + half * s if side_right else c[0] - (half + side_width) * s
+        cv2.rectangle(side, (int(round(x0)), int(round(c[1] - half * s))),
+                      (int(round(x0 + side_width * s)), int(round(c[1] + half * s))), 255, -1)
+        a, b = (cv2.resize(m.astype(np.float32) / 255, (size, size), interpolation=cv2.INTER_AREA)[..., None]
+                for m in (face, side))
+        acc += np.asarray(bg) * (1 - a - b) + np.asarray(colour) * a + np.asarray(side_colour) * b
+    return np.clip(np.rint(acc / n), 0, 255).astype(np.uint8)
+
+
+def test_a_blur_streak_is_measured_from_the_end_away_from_the_side_face():
+    """A 24 px pale square moving 32 px a frame, blurred over 16 px, with a 5 px shaded side
+    face beside the edge that looks towards the image centre: the matte's centroid is 2.5 px
+    towards the side face, on either side of the image; measured from the streak's other end
+    with the object's length (the measurement's ``streak`` correction), the centre is within
+    0.5 px. Slow (under STREAK_SPEED px a frame), near the image centre, without a length, or
+    a sharp cube turned from its axis (whose profile along the axis is as short and sloped),
+    there is no correction."""
+    bg, colour, side, half, size = (215, 215, 215), (251, 215, 251), (170, 160, 175), 12.0, 160
+    background = ColourBackground(np.full((size, size, 3), bg, np.float32), 1.0)
+    palette = Palette(np.array([colour], np.float32), 14.0)
+    alpha, _ = matte(_square_frame((80.0, 80.0), half, colour, bg, size=size).astype(np.float32), background.image,
+                     palette, 1.0)
+    template = alpha[55:106, 55:106].copy()
+    look = Look(palette, template, np.array([25.0, 25.0]), float(template.sum()))
+    length = template_length(look, (half, half))
+    assert abs(length - 2 * half) < 0.5
+    kw = dict(margin=2 + 0.6 * 32, blur=32.0)
+    for x, side_right in ((30.3, True), (130.6, False)):  # left of the centre: its right face shows
+        truth = np.array([x, 78.4])
+        frame = _streak_frame(truth, half, colour, side, 5, side_right, 16.0, bg, size)
+        plain = measure(frame, background, look, truth + 1.0, (half, half), 0.0, **kw)
+        off = plain.centre[0] - truth[0]
+        assert abs(off) > 2.0 and np.sign(off) == (1 if side_right else -1)  # towards the side face
+        assert not plain.streak.any()  # without the object's length: no correction
+        m = measure(frame, background, look, truth + 1.0, (half, half), 0.0, length=length, **kw)
+        assert np.allclose(m.centre, plain.centre)  # the centre itself stays the centroid
+        assert np.linalg.norm(m.centre + m.streak - truth) < 0.5, m
+        slow = measure(frame, background, look, truth + 1.0, (half, half), 0.0, length=length, margin=kw["margin"],
+                       blur=STREAK_SPEED - 1.0)
+        assert not slow.streak.any()
+    centred = _streak_frame(np.array([80.0, 78.4]), half, colour, side, 5, True, 16.0, bg, size)
+    m = measure(centred, background, look, np.array([81.0, 79.4]), (half, half), 0.0, length=length, **kw)
+    assert not m.streak.any()  # near the image centre a side face hardly shows
+    # a cube turned 30 degrees from its axis (tumbling at the ramp's foot), sharp: its profile
+    # along the axis is longer than the cube and sloped at both ends, as a drawn-out streak's,
+    # but its edges across the motion slope too
+    big = np.zeros((size * 4, size * 4), np.uint8)
+    corners = cv2.boxPoints(((30.3 * 4 + 1.5, 78.4 * 4 + 1.5), (24 * 4, 24 * 4), 30.0))
+    cv2.fillPoly(big, [np.round(corners).astype(np.int32)], 255)
+    a = cv2.resize(big.astype(np.float32) / 255, (size, size), interpolation=cv2.INTER_AREA)[..., None]
+    turned = np.clip(np.rint(np.asarray(bg) * (1 - a) + np.asarray(colour) * a), 0, 255).astype(np.uint8)
+    m = measure(turned, background, look, np.array([31.3, 79.4]), (half, half), 0.0, length=length, **kw)
+    assert np.linalg.norm(m.centre - [30.3, 78.4]) < 0.3 and not m.streak.any()
 
 
 def test_colliding_look_alikes_keep_their_order():
@@ -725,7 +792,7 @@ def test_auto_falls_back_to_a_colour_track_that_lasts_longer(monkeypatch):
 
     def colour_tracks(frames, start, wins, methods, start_frame, fps, tilts=None, lost_at=40):
         valid = np.arange(N) < lost_at
-        return {i: (px + 60 * i, valid, valid.astype(float), lost_at, 0) for i in range(2)}
+        return {i: (px + 60 * i, valid, valid.astype(float), lost_at, 0, np.zeros_like(px)) for i in range(2)}
 
     def klt_lost(frames, start, windows, **kw):
         raise TrackingError("object 1 track lost at frame 20: only 0 features still follow it", object_index=0,
@@ -762,7 +829,8 @@ def test_plain_object_whose_colour_track_was_lost_keeps_klt_only_on_probation(mo
     def run(lost, klt_px):
         monkeypatch.setattr(track, "_colour_tracks", lambda *a, **k: {
             i: (px + 60 * i, np.arange(N) < (lost[i] if lost[i] >= 0 else N),
-                (np.arange(N) < (lost[i] if lost[i] >= 0 else N)).astype(float), lost[i], 0) for i in range(2)})
+                (np.arange(N) < (lost[i] if lost[i] >= 0 else N)).astype(float), lost[i], 0, np.zeros_like(px))
+            for i in range(2)})
 
         def klt(frames, start, windows, **kw):
             n, m = len(start), len(frames)
@@ -859,7 +927,7 @@ def test_measurement_off_the_rough_track_and_lone_frames_are_dropped():
     frames = np.stack([_square_frame((40.0, 40.0), half, colour, bg)] * 2)
     guess = np.array([[[40.0, 34.0]], [[40.0, 34.0]]])  # 6 px above the square's centre
     rough = np.array([[[40.0, 27.0]], [[40.0, 25.0]]])  # the rough track: 13 px and 15 px above it
-    pixels, quality, _ = _measure_all(frames, background, [[(np.array([40.0, 40.0]), look)]], guess,
+    pixels, quality, _, _ = _measure_all(frames, background, [[(np.array([40.0, 40.0]), look)]], guess,
                                       [np.array([half, half])], np.zeros((2, 1)), np.zeros((2, 1)), rough)
     assert quality[0, 0] > 0.9 and np.allclose(pixels[0, 0], [40.0, 40.0], atol=0.2)  # 13 <= 2 + 12
     assert quality[1, 0] == 0.0 and np.array_equal(pixels[1, 0], guess[1, 0])  # 15 > 2 + 12: not measured

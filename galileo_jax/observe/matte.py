@@ -55,7 +55,7 @@ import numpy as np
 from galileo_jax.errors import TrackingError
 from galileo_jax.observe.colour import (ColourBackground, Look, Palette, best_gain, colour_background,
                                         learn_template, object_colours, unlearn_objects)
-from galileo_jax.observe.measure import measure
+from galileo_jax.observe.measure import measure, template_length
 from galileo_jax.observe.rough import rough_pass, static_scenery
 from galileo_jax.observe.tracks import (
     BACKGROUND_FRAMES,
@@ -103,6 +103,9 @@ class MatteTracks(NamedTuple):
         rough: (N, n, 2) the first pass's track (px; NaN where not followed).
         look_frame: (n,) frame from which each object's colours and template were taken (-1:
             its start frame, no clean frame found).
+        streak: (N, n, 2) px to add to ``pixels`` for a plain object's own track, where its
+            blur streak's end facing the image centre was cut short or drawn out
+            (:func:`~galileo_jax.observe.measure.measure`'s ``streak``; zeros elsewhere).
     """
 
     pixels: np.ndarray
@@ -112,6 +115,7 @@ class MatteTracks(NamedTuple):
     lost: np.ndarray
     rough: np.ndarray
     look_frame: np.ndarray
+    streak: np.ndarray
 
 
 def _angles(px: np.ndarray, ok: np.ndarray, angle0: float, min_step: float = 1.5, tilts=None) -> np.ndarray:
@@ -259,17 +263,29 @@ def _learn_looks(frames, bg: ColourBackground, px: np.ndarray, ks, half, angles:
     return kept
 
 
+def _length(looks: list[tuple[np.ndarray, Look]], half) -> float:
+    """The object's length along its axis in a sharp frame (px), for the measurement of its blur
+    streaks: the upper quartile of its looks'
+    (:func:`~galileo_jax.observe.measure.template_length`). A look learned in a motion-blurred
+    frame is as long where neither end of its streak is cut short, and shorter where one is;
+    the quartile, not the longest, because a look may also hold a little of something else."""
+    return float(np.percentile([template_length(lk, half) for _, lk in looks], 75))
+
+
 def _nearest(looks: list[tuple[np.ndarray, Look]], at) -> Look:
     """The look (:func:`_learn_looks`) taken nearest the position ``at`` (px)."""
     return min(looks, key=lambda pl: float(np.linalg.norm(pl[0] - at)))[1]
 
 
 def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, angles: np.ndarray, speed: np.ndarray,
-                 rough: np.ndarray, ks=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 rough: np.ndarray, ks=None, lengths=None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every frame (or the frames ``ks``) of every object measured (:func:`~galileo_jax.observe.measure.measure`) around
     ``px`` (N, n, 2), each keeping out of the others' footprints there: (N, n, 2) centres
     (``px`` where not measured), (N, n) qualities (0: not measured, or not wholly inside the
-    image), (N, n) aligned flags.
+    image), (N, n) aligned flags, and (N, n, 2) the measurements' ``streak`` corrections.
+    ``lengths``: per object its length along its axis (px, or None), for those corrections
+    (``measure``'s ``length``).
 
     A centre farther from the ``rough`` track (N, n, 2) than the measurement's margin plus the
     object's smaller size (2 x its smaller half) is not measured: the centroid walked off the
@@ -279,6 +295,8 @@ def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, an
     shape = frames.shape[1:3]
     known = np.all(np.isfinite(px), axis=-1)
     pixels, quality, aligned = px.copy(), np.zeros((N, n)), np.zeros((N, n), bool)
+    streak = np.zeros((N, n, 2))
+    lengths = [None] * n if lengths is None else lengths
     for k in range(N) if ks is None else ks:
         for i in range(n):
             if not known[k, i] or visible_fraction(shape, px[k, i], halves[i], angles[k, i]) < 0.999:
@@ -286,10 +304,10 @@ def _measure_all(frames, bg: ColourBackground, looks, px: np.ndarray, halves, an
             others = [(px[k, j], halves[j], angles[k, j]) for j in range(n) if j != i and known[k, j]]
             margin = 2.0 + 0.6 * speed[k, i]
             m = measure(frames[k], bg, _nearest(looks[i], px[k, i]), px[k, i], halves[i], angles[k, i],
-                        margin=margin, blur=speed[k, i], keep_out=others)
+                        margin=margin, blur=speed[k, i], keep_out=others, length=lengths[i])
             if np.linalg.norm(m.centre - rough[k, i]) <= margin + 2.0 * min(halves[i]):
-                pixels[k, i], quality[k, i], aligned[k, i] = m.centre, m.quality, m.aligned
-    return pixels, quality, aligned
+                pixels[k, i], quality[k, i], aligned[k, i], streak[k, i] = m.centre, m.quality, m.aligned, m.streak
+    return pixels, quality, aligned, streak
 
 
 def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame: int = 0, fps: float | None = None,
@@ -389,7 +407,10 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
                 raise TrackingError(f"object {i + 1}: its colour does not stand out from the background (at pixel "
                                     f"({start[i, 0]:.0f}, {start[i, 1]:.0f}) in frame {start_frame + first_frame}); "
                                     "check camera.start_pixels, or try tracker: features", object_index=i) from None
-        pixels, quality, aligned = _measure_all(frames, bg, looks, px, halves, angles, speed, rough, measure_frames)
+        lengths = [_length(looks[i], halves[i]) if measure_frames is None else None for i in range(n)]
+        pixels, quality, aligned, streak = _measure_all(frames, bg, looks, px, halves, angles, speed, rough,
+                                                        measure_frames, lengths)
+        measured_px = pixels.copy()
         if measure_frames is None:
             good = quality >= 0.8
         else:  # frames not measured keep their rough-pass verdict
@@ -409,7 +430,8 @@ def track_matte(frames: np.ndarray, start_pixels, halves, angles, *, start_frame
             valid &= ~doubted
             lost = np.where(lost >= 0, lost, _unseen_till_end(valid, rough, halves, angles, shape, start_frame))
         lost = _stopped_where_lost(frames, bg, looks, pixels, quality, aligned, valid, lost, halves, angles)
-    return MatteTracks(pixels, valid, quality, aligned, lost, rough, look_frame)
+    streak[~np.all(pixels == measured_px, axis=-1)] = 0.0  # bridged or exchanged since: not that measurement's
+    return MatteTracks(pixels, valid, quality, aligned, lost, rough, look_frame, streak)
 
 
 def _look_alike(a: Palette, b: Palette) -> bool:

@@ -205,8 +205,21 @@ def track_scene(frames: np.ndarray, start_pixels, scene: Scene, calib: Calibrati
     tracks, agree, dropped = _cross_check(tracks, colour, methods, downhill, start_frame,  # may switch to "colour"
                                           _pair_gaps(wins), scenery=(frames, background, wins),
                                           probation=on_probation)
+    tracks = _with_streaks(tracks, colour, methods)
     cut = [i for i in range(n) if methods[i] != "outline"]
     return SceneTracks(_inside_only(tracks, wins, frames.shape[1:3], cut), tuple(methods), agree, dropped)
+
+
+def _with_streaks(tracks: Tracks, colour: dict, methods: list[str]) -> Tracks:
+    """The tracks with each colour-tracked object's blur-streak corrections added
+    (:class:`~galileo_jax.observe.matte.MatteTracks`'s ``streak``). Only there: where KLT
+    follows an object, its colour track is a cross-check, and the checks were measured on
+    (and tuned for) the plain centroids."""
+    px = tracks.pixels.copy()
+    for i in range(len(methods)):
+        if methods[i] == "colour" and i in colour:
+            px[:, i] += colour[i][5]
+    return tracks._replace(pixels=px)
 
 
 def _centred_starts(start: np.ndarray, tr: Tracks, colour: dict, ids: list[int], start_frame: int, wins
@@ -282,7 +295,8 @@ def _tilt(px: np.ndarray, k: int, angle0: float) -> float:
 def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_frame: int, fps, tilts=None) -> dict:
     """Colour tracks of the objects whose method is "colour" or "auto", followed together
     (each keeps out of the others' footprints): ``{i: (pixels, valid, quality, lost,
-    look_frame)}`` (``lost`` >= 0: the frame from which the track was lost). An "auto" object
+    look_frame, streak)}`` (``lost`` >= 0: the frame from which the track was lost; ``streak``
+    (N, 2) px, :class:`~galileo_jax.observe.matte.MatteTracks`'s, for the object's own track only). An "auto" object
     whose colour does not stand out is left out (KLT takes it); a "colour" one raises, as does
     a lost "colour" track. ``tilts``: the path's image tilts (:func:`~galileo_jax.observe.tracks.path_tilts`).
 
@@ -308,7 +322,7 @@ def _colour_tracks(frames, start: np.ndarray, wins, methods: list[str], start_fr
                 raise TrackingError(f"object {i + 1} track lost at frame {mt.lost[j]}{when}: its colour no longer "
                                     "stands out from the background (occluded, or out of the light?); check the "
                                     "video, or try tracker: features")
-            out[i] = (mt.pixels[:, j], mt.valid[:, j], mt.quality[:, j], mt.lost[j], mt.look_frame[j])
+            out[i] = (mt.pixels[:, j], mt.valid[:, j], mt.quality[:, j], mt.lost[j], mt.look_frame[j], mt.streak[:, j])
         return out
     return {}
 
