@@ -156,6 +156,14 @@ def _crossings(profile: np.ndarray, level: float) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+def _binned_profile(coord: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, int]:
+    """Mean of ``weights`` in 1 px bins of ``coord`` (both (m,)): the profile, bin b holding
+    ``coord`` in [lo + b, lo + b + 1), and lo."""
+    lo = math.floor(float(coord.min()))
+    idx = (np.floor(coord) - lo).astype(int)
+    return np.bincount(idx, weights) / np.maximum(np.bincount(idx), 1), lo
+
+
 def _streak_end_shift(weights: np.ndarray, centre, half, angle: float, length: float, image_centre,
                       bad: np.ndarray | None = None) -> float:
     """Shift (px, along the object's axis at ``angle``) that moves ``centre`` (the centroid of a
@@ -204,10 +212,7 @@ def _streak_end_shift(weights: np.ndarray, centre, half, angle: float, length: f
     facing_high = towards > 0.0
     if bad is not None and (bad & band & ((along < 0) if facing_high else (along > 0))).any():
         return 0.0
-    s = along[band]
-    lo = math.floor(float(s.min()))
-    idx = (np.floor(s) - lo).astype(int)
-    profile = np.bincount(idx, weights[band]) / np.maximum(np.bincount(idx), 1)
+    profile, lo = _binned_profile(along[band], weights[band])
     plateau = float(profile.max())
     if plateau < 0.5:
         return 0.0
@@ -223,12 +228,9 @@ def _streak_end_shift(weights: np.ndarray, centre, half, angle: float, length: f
         return 0.0
     # motion blur leaves the edges across the motion sharp; an object turned from its axis (a
     # cube tumbling at the ramp's foot) slopes at all four
-    middle = (np.abs(along) < 0.25 * length) & (weights > 0)
-    if middle.any():
-        t = (-dx * u[1] + dy * u[0])[np.abs(along) < 0.25 * length]
-        t_lo = math.floor(float(t.min()))
-        t_idx = (np.floor(t) - t_lo).astype(int)
-        across = np.bincount(t_idx, weights[np.abs(along) < 0.25 * length]) / np.maximum(np.bincount(t_idx), 1)
+    middle = np.abs(along) < 0.25 * length
+    if (middle & (weights > 0)).any():
+        across, _ = _binned_profile((-dx * u[1] + dy * u[0])[middle], weights[middle])
         a10, b10 = _crossings(across, 0.1 * float(across.max()))
         a90, b90 = _crossings(across, 0.9 * float(across.max()))
         if min(a90 - a10, b10 - b90) > STREAK_RAMP:
