@@ -9,7 +9,8 @@ in (0.1, 1) kg, k1 in (0.05, 0.3), k2 in (0.05, 0.6)). Per batch size B:
 * ``mujoco``: :func:`galileo_jax.physics.simulate_c.rollout_poses_host`: B model copies with their
   parameters, one ``mujoco.rollout`` over a thread pool of all cores (the C engine as ``fit
   --engine mujoco`` runs it, model copies included), and ``mujoco (in jit)``: the same through
-  its ``jax.pure_callback`` inside ``jit(vmap)``, as the samplers call it.
+  its host call (an XLA FFI target, :mod:`galileo_jax.physics.host_call`) inside ``jit(vmap)``, as
+  the samplers call it.
 
 Reported: rollouts per second (best of ``--repeats``) and the ratio C / MJX. Compile time of
 the MJX program: cold (empty persistent cache) and warm (JAX's persistent compilation cache
@@ -146,7 +147,7 @@ def _table(result: dict, title: str) -> list[str]:
              f"({result['rows'][0]['n_steps']} steps at dt = 1/240 s), float64. Rollouts per second, best of "
              f"{result['repeats']}" + (" (1 for MJX at B >= 1024)" if result.get("backend", "cpu") == "cpu" else "")
              + "; C MuJoCo timings include the per-rollout model copies "
-             "and mj_setConst. 'in jit': the C engine through jax.pure_callback inside jit(vmap), as the samplers "
+             "and mj_setConst. 'in jit': the C engine through its host call inside jit(vmap), as the samplers "
              "call it. Position diff: largest |x, z| difference of the two engines' trajectories (same parameters)."
              + "".join(f" MJX at batch {r['batch']}: lax.map over vmapped chunks of {r['mjx_chunk']} (one vmap of "
                        "4096, and chunks of 1024, deadlocked: jaxlib 0.10.2 on this CPU, every thread idle)."

@@ -26,8 +26,9 @@ def enable_compilation_cache() -> Path:
     jax.config.update("jax_compilation_cache_dir", str(path))
     # Every program, however fast to compile: README command 1 compiles ~150 small programs
     # (0.03 s each, 4 s in all) besides its big ones; stored, its warm inference took 16 s
-    # instead of 21-24 s (cache 0.8 MB). Programs with host callbacks (the C MuJoCo engine's)
-    # are never stored by JAX and compile in every process.
+    # instead of 21-24 s (cache 0.8 MB). The C MuJoCo engine's programs are stored too: their
+    # rollouts are an FFI call, not a Python host callback, which JAX never stores
+    # (galileo_jax.physics.host_call).
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path

@@ -174,8 +174,8 @@ MAX_LM_STARTS = 16
 
 #: On the C engine (``problem.pads_batches``) a call of S <= :data:`MAX_LM_STARTS` starts is
 #: padded to a multiple of this many (``fit``'s default number of starts): a refit from one
-#: point then runs the main fit's compiled program instead of compiling its own (about 1.5 s in
-#: every process: programs with host callbacks are never cached on disk).
+#: point then runs the main fit's compiled program instead of compiling its own (about 1.5 s the
+#: first time, then from the persistent cache).
 LM_PAD = 4
 
 

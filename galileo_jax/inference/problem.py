@@ -383,10 +383,9 @@ class BatchedAPI:
     @property
     def pads_batches(self) -> bool:
         """Whether every batched call of up to ``max_batch`` rows runs one program (:meth:`batch_size`):
-        on the C engine, whose programs hold a host callback, which JAX's persistent cache never
-        stores (each shape is compiled in every process: 0.1-2 s) and whose rollout cache
-        simulates padded copies once. MJX pads only to the next power of two (a padded row costs
-        a rollout there)."""
+        on the C engine, whose rollout cache simulates padded copies once (each shape is a
+        program compiled once, 0.1-2 s, then taken from the persistent cache). MJX pads only to
+        the next power of two (a padded row costs a rollout there)."""
         return self.simulator_engine == "mujoco"
 
     def batch_size(self, n: int) -> int:

@@ -7,8 +7,9 @@ gradient-free methods use it by default on CPU (``fit --engine mujoco``); MJX st
 derivatives (``grad.jacobian: ad``), for the CNN's training batches generated inside ``jit``
 and for GPUs.
 
-How it plugs into JAX: :func:`rollout_poses` is a ``jax.pure_callback`` with
-``vmap_method="expand_dims"``, so a vmapped batch of B rollouts reaches the host as ONE call
+How it plugs into JAX: :func:`rollout_poses` is a host call (as ``jax.pure_callback``, but an
+XLA FFI target that JAX's persistent compilation cache keeps: :mod:`galileo_jax.physics.host_call`)
+with ``vmap_method="expand_dims"``, so a vmapped batch of B rollouts reaches the host as ONE call
 of B rollouts (one ``mujoco.rollout`` over a thread pool), and the samplers, the
 finite-difference Jacobian and the likelihood run unchanged inside ``jit``. It has no
 derivative: differentiating through it raises (use the MJX engine for ``jacobian: ad``).
@@ -42,6 +43,7 @@ from mujoco import rollout as mj_rollout
 
 from galileo_jax.effects.runtime import needs_mjx
 from galileo_jax.errors import GalileoError
+from galileo_jax.physics.host_call import host_call, stable_name
 from galileo_jax.physics.model import PHYSICS_FIELDS, object_poses, set_physics
 
 #: Engines a simulator can run on.
@@ -258,7 +260,8 @@ def cached_rollout_poses(sim, mass: np.ndarray, friction: np.ndarray, n_steps: i
 def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, fields: dict | None = None,
                   velocity: jax.Array | None = None, live_steps: jax.Array | None = None,
                   offset: jax.Array | None = None) -> jax.Array:
-    """:func:`rollout_poses_host` as a ``jax.pure_callback`` for one rollout (vmap batches it).
+    """:func:`rollout_poses_host` as a host call (:func:`~galileo_jax.physics.host_call.host_call`)
+    for one rollout (vmap batches it).
 
     Args:
         mass, friction: (n_objects,).
@@ -310,4 +313,10 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
             poses = np.concatenate([poses, np.repeat(poses[:, -1:], n_steps - steps, axis=1)], axis=1)
         return poses.reshape(lead + (n_steps + 1, n, 3))
 
-    return jax.pure_callback(host, shape, *inputs, vmap_method="expand_dims")
+    # the target's name holds everything ``host`` depends on: the simulator's model (its scene
+    # but for name, camera and video, timestep, effects, ensemble) and the static arguments
+    scene = sim.scene.model_dump_json(exclude={"name": True, "camera": True, "video": True})
+    name = stable_name("galileo_c_rollout", scene, float(sim.dt), tuple(e.name for e in sim.effects),
+                       int(sim.ensemble), int(n_steps), tuple(names), tuple(map(tuple, own)), velocity is not None,
+                       offset is not None, live)
+    return host_call(name, host, shape, *inputs)
