@@ -29,6 +29,8 @@ def test_a_host_call_computes_what_numpy_does_under_jit_and_vmap_in_one_batched_
     got = jax.jit(jax.vmap(one, in_axes=(0, None)))(jnp.asarray(xs), jnp.asarray(y))
     np.testing.assert_array_equal(np.asarray(got), xs * 2.0 + y)
     assert calls == [(4, 3)]  # the batch reaches the host as one call
+    lowered = jax.jit(one).lower(xs[0], y).as_text()
+    assert stable_name("test_affine", 1) in lowered and "callback" not in lowered  # an FFI call by name
 
 
 def test_an_error_in_the_host_function_is_raised_with_its_message():
@@ -45,6 +47,17 @@ def test_a_wrong_result_shape_is_an_error_not_a_silent_copy():
     f = jax.jit(lambda x: host_call("test_wrong_shape", lambda a: np.zeros(3), shape, x))
     with pytest.raises(Exception, match="returned shape"):
         np.asarray(f(jnp.zeros(2)))
+
+
+def test_on_another_backend_a_host_call_is_a_pure_callback_with_the_same_values(monkeypatch):
+    # a GPU program cannot call the CPU target: it falls back to jax.pure_callback
+    import galileo_jax.physics.host_call as host_call_module
+
+    monkeypatch.setattr(host_call_module.jax, "default_backend", lambda: "gpu")
+    shape = jax.ShapeDtypeStruct((3,), jnp.float64)
+    f = jax.jit(lambda x: host_call("test_other_backend", np.square, shape, x))
+    assert "test_other_backend" not in str(jax.jit(f).lower(np.arange(3.0)).as_text())
+    np.testing.assert_array_equal(np.asarray(f(np.arange(3.0))), np.arange(3.0) ** 2)
 
 
 def test_stable_names_depend_on_every_part_and_nothing_else():

@@ -20,6 +20,10 @@ XLA's metadata query (the API version it was written against) and reports a Pyth
 as an FFI error, which JAX raises. Registered with ``jax.ffi.register_ffi_target``; called with
 ``jax.ffi.ffi_call`` (JAX documentation, "Foreign function interface (FFI)").
 
+The target is registered for the CPU, where XLA hands it host memory. A program built for
+another backend (a GPU: ``jax.default_backend()`` when it is traced) calls ``fn`` through
+``jax.pure_callback`` instead, as before, and is compiled in every process.
+
 A target's name must identify the function: a program loaded from the cache calls whatever
 function is registered under its name in the loading process. :func:`host_call` callers build
 the name from everything the function depends on (:func:`stable_name`).
@@ -185,6 +189,8 @@ def host_call(name: str, fn: Callable[..., np.ndarray], result: jax.ShapeDtypeSt
         jax.errors.JaxRuntimeError (when the program runs): ``fn`` raised; its traceback is
             the message.
     """
+    if jax.default_backend() != "cpu":  # a GPU's program would look for a GPU target of that name
+        return jax.pure_callback(fn, result, *args, vmap_method=vmap_method)
     with _LOCK:
         _FUNCTIONS[name] = fn
         if name not in _HANDLERS:
