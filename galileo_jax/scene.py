@@ -402,3 +402,13 @@ def save_scene(scene: Scene, path: str | Path) -> None:
     if "name" not in data:
         data["name"] = scene.name
     Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def scene_key(scene: Scene) -> str:
+    """What of a scene changes the simulation (everything but its name, camera and video block).
+    A flush ramp (``ramp.thickness`` 0) leaves the thickness out, so the key of every scene
+    written before that key existed (and the shipped CNNs' scene hashes) is unchanged."""
+    exclude: dict = {"name": True, "camera": True, "video": True}
+    if scene.ramp.thickness == 0:
+        exclude["ramp"] = {"thickness"}
+    return scene.model_dump_json(exclude=exclude)

@@ -84,7 +84,7 @@ def test_a_ramp_board_stated_in_the_scene_is_the_board_the_renderer_draws():
     world = synth.simulate_motion(flat, phys, 240.0, 3, n_frames=300, world=WorldPhysics(ramp_thickness=0.015))
     np.testing.assert_array_equal(stated.positions, world.positions)
     from galileo_jax.inference.cnn import scene_hash
-    from galileo_jax.inference.problem import scene_key
+    from galileo_jax.scene import scene_key
 
     assert "thickness" not in scene_key(flat) and "thickness" in scene_key(board)  # old keys and CNN hashes kept
     assert scene_hash(board) != scene_hash(flat)

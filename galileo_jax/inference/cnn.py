@@ -80,7 +80,7 @@ class CNNError(GalileoError):
 def scene_hash(scene: Scene) -> str:
     """Short hash of what of ``scene`` changes the simulation (its physics; not its name or
     camera), so a model trained on one scene file serves every file of the same setup."""
-    from galileo_jax.inference.problem import scene_key
+    from galileo_jax.scene import scene_key
 
     return hashlib.sha256(scene_key(scene).encode()).hexdigest()[:16]
 

@@ -62,7 +62,7 @@ from galileo_jax.physics.simulate import (
     structure_key,
     velocity_profile,
 )
-from galileo_jax.scene import Scene
+from galileo_jax.scene import Scene, scene_key
 
 #: Default central-difference step in unconstrained coordinates z (see inference/grad.py for
 #: the measurement that chose it).
@@ -274,16 +274,6 @@ class Engine:
 
 _ENGINES: "OrderedDict[tuple, Engine]" = OrderedDict()
 _ENGINES_SIZE = 16
-
-
-def scene_key(scene: Scene) -> str:
-    """What of a scene changes the simulation (everything but its name, camera and video block).
-    A flush ramp (``ramp.thickness`` 0) leaves the thickness out, so the key of every scene
-    written before that key existed (and the shipped CNNs' scene hashes) is unchanged."""
-    exclude: dict = {"name": True, "camera": True, "video": True}
-    if scene.ramp.thickness == 0:
-        exclude["ramp"] = {"thickness"}
-    return scene.model_dump_json(exclude=exclude)
 
 
 def _blocks(seconds: float, fps: float) -> float:

@@ -14,8 +14,8 @@ registers before it runs it (:func:`host_call` registers on first use, in every 
 How: the target is a C function pointer made by ``ctypes`` (``CFUNCTYPE``, which takes the
 GIL, so XLA may call it from any of its threads) that reads XLA's FFI call frame (the C API
 ``xla/ffi/api/c_api.h`` shipped in jaxlib, ``jax.ffi.include_dir()``, API version 0.3:
-``XLA_FFI_CallFrame``, ``XLA_FFI_Buffer``), wraps its argument buffers as NumPy arrays without
-copying, calls the Python function and copies its result into the output buffer. It answers
+``XLA_FFI_CallFrame``, ``XLA_FFI_Buffer``), copies its argument buffers into NumPy arrays,
+calls the Python function and copies its result into the output buffer. It answers
 XLA's metadata query (the API version it was written against) and reports a Python exception
 as an FFI error, which JAX raises. Registered with ``jax.ffi.register_ffi_target``; called with
 ``jax.ffi.ffi_call`` (JAX documentation, "Foreign function interface (FFI)").

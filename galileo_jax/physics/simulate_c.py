@@ -45,6 +45,7 @@ from galileo_jax.effects.runtime import needs_mjx
 from galileo_jax.errors import GalileoError
 from galileo_jax.physics.host_call import host_call, stable_name
 from galileo_jax.physics.model import PHYSICS_FIELDS, object_poses, set_physics
+from galileo_jax.scene import scene_key
 
 #: Engines a simulator can run on.
 ENGINES = ("mjx", "mujoco")
@@ -313,10 +314,9 @@ def rollout_poses(sim, mass: jax.Array, friction: jax.Array, n_steps: int, field
             poses = np.concatenate([poses, np.repeat(poses[:, -1:], n_steps - steps, axis=1)], axis=1)
         return poses.reshape(lead + (n_steps + 1, n, 3))
 
-    # the target's name holds everything ``host`` depends on: the simulator's model (its scene
-    # but for name, camera and video, timestep, effects, ensemble) and the static arguments
-    scene = sim.scene.model_dump_json(exclude={"name": True, "camera": True, "video": True})
-    name = stable_name("galileo_c_rollout", scene, float(sim.dt), tuple(e.name for e in sim.effects),
+    # the target's name holds everything ``host`` depends on: the simulator's model (its scene's
+    # physics, timestep, effects, ensemble) and the static arguments
+    name = stable_name("galileo_c_rollout", scene_key(sim.scene), float(sim.dt), tuple(e.name for e in sim.effects),
                        int(sim.ensemble), int(n_steps), tuple(names), tuple(map(tuple, own)), velocity is not None,
                        offset is not None, live)
     return host_call(name, host, shape, *inputs)
