@@ -209,7 +209,12 @@ def cnn_estimate(problem: Problem, cfg: FitConfig, key, model=None):
 
     if model is None:
         model = cnn_files.find_model(problem.scene, problem.observation.fps, cfg.cnn.model)
-    return cnn.estimate(model, problem.observation, problem.space, key)
+    features = None
+    if model.spec.family is not None:  # a scene-conditioned network reads the scene too
+        from galileo_jax.scene_family import scene_features
+
+        features = scene_features(problem.scene, problem.observation.fps)
+    return cnn.estimate(model, problem.observation, problem.space, key, features=features)
 
 
 def _simulate_batch(problem: Problem, thetas: np.ndarray) -> np.ndarray:

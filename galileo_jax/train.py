@@ -56,7 +56,14 @@ class NoiseConfig(_Strict):
 
 
 class TrainConfig(_Strict):
-    """All settings of one training run (``configs/cnn_ramp20.yaml`` documents each key)."""
+    """All settings of one training run (``configs/cnn_ramp20.yaml`` documents each key).
+
+    ``family`` (a mapping, ``{}`` for the default ranges): train a scene-conditioned network on
+    scenes drawn from a :class:`~galileo_jax.scene_family.SceneFamily` with these ranges
+    ({feature: [low, high]}; ``configs/cnn_family.yaml``) instead of one ``scene``; ``fps`` is then
+    the network's time grid and ``engine`` C MuJoCo (the family's rollouts,
+    :mod:`galileo_jax.physics.simulate_family`).
+    """
 
     scene: str = "scenes/ramp_20.yaml"
     fps: float = Field(30.0, gt=0)
@@ -80,6 +87,7 @@ class TrainConfig(_Strict):
     checkpoint_every: int = Field(200, ge=1)
     seed: int = 0
     out: str = "models/ramp_20_cnn"
+    family: dict[str, tuple[float, float]] | None = None
 
 
 def load_train_config(path: str | Path | None) -> TrainConfig:
@@ -124,30 +132,42 @@ class Setup(NamedTuple):
 
 
 def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
-    """Build the simulator, network, optimiser and the initial :class:`TrainState`.
+    """Build the simulator, network, optimiser and the initial :class:`TrainState` (for
+    ``cfg.family``: the scene family instead of one scene, :func:`_setup_family`).
 
     Raises:
         GalileoError: the scene file is missing or invalid, or settings that do not fit it.
     """
     import jax
-    import jax.numpy as jnp
-    import optax
-    from flax import nnx
 
     from galileo_jax.config import pick_engine
     from galileo_jax.inference import cnn
-    from galileo_jax.inference import cnn_training
-    from galileo_jax.inference.problem import get_engine
+    from galileo_jax.inference.problem import GPU_MAX_BATCH, get_engine
     from galileo_jax.scene import load_scene
 
+    if cfg.family is not None:
+        return _setup_family(cfg)
     if scene is None:
         path = Path(cfg.scene)
         scene = load_scene(path if path.is_absolute() or path.exists() else ROOT / path)
     if scene.effects:
         raise GalileoError(f"scene {scene.name!r} has effects; the CNN learns the base model only: remove them")
+    spec, noise = _spec_and_noise(cfg, lambda **kw: cnn.CNNSpec.for_scene(scene, cfg.fps, **kw))
+    kind = pick_engine(cfg.engine)
+    on_cpu = jax.default_backend() == "cpu"
+    chunk = cfg.rollouts if kind == "mujoco" else min(cfg.rollouts, ROLLOUT_CHUNK if on_cpu else GPU_MAX_BATCH)
+    engine = get_engine(scene, cfg.fps, (), spec.n_samples / cfg.fps, chunk, kind)
+    return _with_network(cfg, scene, spec, noise, engine)
+
+
+def _spec_and_noise(cfg: TrainConfig, make_spec) -> tuple:
+    """The network's spec (``make_spec(**network settings)``) and the :class:`NoiseModel` of
+    ``cfg``, checked. Raises GalileoError (one line) on settings that do not fit."""
+    from galileo_jax.inference import cnn_training
+
     try:
-        spec = cnn.CNNSpec.for_scene(scene, cfg.fps, n_samples=cfg.n_samples, release_offset=cfg.release_offset,
-                                     architecture=cfg.architecture, width=cfg.width, hidden=cfg.hidden)
+        spec = make_spec(n_samples=cfg.n_samples, release_offset=cfg.release_offset, architecture=cfg.architecture,
+                         width=cfg.width, hidden=cfg.hidden)
         noise = cnn_training.NoiseModel(tuple(cfg.noise.position_sd), cfg.noise.min_samples, cfg.noise.prefix)
         if not 0 < noise.position_sd[0] <= noise.position_sd[1]:
             raise ValueError(f"noise.position_sd must be [low, high] with 0 < low <= high, got {noise.position_sd}")
@@ -155,18 +175,45 @@ def setup(cfg: TrainConfig, scene=None) -> tuple[Setup, TrainState]:
             raise ValueError(f"noise.min_samples {noise.min_samples} exceeds n_samples {spec.n_samples}")
     except ValueError as err:
         raise GalileoError(f"training settings: {err}") from None
-    kind = pick_engine(cfg.engine)
-    from galileo_jax.inference.problem import GPU_MAX_BATCH
+    return spec, noise
 
-    on_cpu = jax.default_backend() == "cpu"
-    chunk = cfg.rollouts if kind == "mujoco" else min(cfg.rollouts, ROLLOUT_CHUNK if on_cpu else GPU_MAX_BATCH)
-    engine = get_engine(scene, cfg.fps, (), spec.n_samples / cfg.fps, chunk, kind)
+
+def _with_network(cfg: TrainConfig, scene, spec, noise, engine) -> tuple[Setup, TrainState]:
+    """The :class:`Setup` with a fresh network for ``spec`` and its optimiser (AdamW, warm-up
+    then cosine decay to 5%, gradient clipping), and the initial :class:`TrainState`."""
+    import jax
+    import jax.numpy as jnp
+    import optax
+    from flax import nnx
+
+    from galileo_jax.inference import cnn
+
     graphdef, params = nnx.split(cnn.build_network(spec, cfg.seed), nnx.Param)
     schedule = optax.warmup_cosine_decay_schedule(0.0, cfg.learning_rate, min(100, cfg.steps // 10 + 1), cfg.steps,
                                                   cfg.learning_rate * 0.05)
     tx = optax.chain(optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=cfg.weight_decay))
     state = TrainState(params, tx.init(params), jnp.asarray(0, jnp.int32), jax.random.PRNGKey(cfg.seed + 1))
     return Setup(cfg, scene, spec, noise, engine, graphdef, tx), state
+
+
+def _setup_family(cfg: TrainConfig) -> tuple[Setup, TrainState]:
+    """:func:`setup` of a scene-conditioned network (``cfg.family``): no simulator object (each
+    rollout builds its scene, :mod:`galileo_jax.physics.simulate_family`); ``Setup.scene`` is
+    the :class:`~galileo_jax.scene_family.SceneFamily`, ``Setup.engine`` the family's
+    :class:`~galileo_jax.params.ParamSpace`."""
+    from galileo_jax.inference import cnn, cnn_training
+    from galileo_jax.scene_family import SceneFamily
+
+    if cfg.engine == "mjx":
+        raise GalileoError("a scene-conditioned network trains on C MuJoCo (engine auto or mujoco), not mjx")
+    if cfg.prior != "scene":
+        raise GalileoError("training settings: a scene-conditioned network trains on each scene's prior (prior: scene)")
+    try:
+        family = SceneFamily.from_dict(cfg.family)
+    except ValueError as err:
+        raise GalileoError(f"training settings: {err}") from None
+    spec, noise = _spec_and_noise(cfg, lambda **kw: cnn.CNNSpec.for_family(family, cfg.fps, **kw))
+    return _with_network(cfg, family, spec, noise, cnn_training.family_space(spec))
 
 
 def draw_prior(s: Setup, key, n: int):
@@ -181,9 +228,10 @@ def draw_prior(s: Setup, key, n: int):
 
 
 def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
-    """Pure ``batch(key, n_rollouts) -> (x (n * views, L, T + 1), theta (n * views, d))``:
-    simulated, noisy network inputs and their true parameters (``views`` copies of each
-    rollout; default the config's)."""
+    """Pure ``batch(key, n_rollouts) -> (x (n * views, L, C), theta (n * views, d))``:
+    simulated, noisy network inputs (C = ``spec.channels``) and their true parameters (``views``
+    copies of each rollout; default the config's); for a scene-conditioned network each rollout
+    of a scene drawn from the family."""
     import jax
     import jax.numpy as jnp
 
@@ -193,6 +241,12 @@ def make_batch_fn(s: Setup, views: int | None = None) -> Callable:
 
     def batch(key, n):
         k_theta, k_sim = jax.random.split(key)
+        if s.spec.family is not None:  # a scene per rollout, then its parameters
+            k_scene, k_theta = jax.random.split(k_theta)
+            features = s.scene.draw(k_scene, n)
+            theta = cnn_training.family_prior(s.engine, features, k_theta, s.cfg.slide_margin)
+            x = cnn_training.simulate_family_examples(s.spec, s.noise, features, theta, k_sim, views)
+            return x, jnp.tile(theta, (views, 1)).astype(jnp.float32)
         theta = draw_prior(s, k_theta, n)
         x = cnn_training.simulate_examples(s.engine, s.spec, s.noise, theta, k_sim, views)
         return x, jnp.tile(theta, (views, 1)).astype(jnp.float32)

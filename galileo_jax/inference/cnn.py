@@ -37,7 +37,7 @@ state with :func:`flax.nnx.split`), except loading and the input window, which a
 from __future__ import annotations
 
 import hashlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -101,6 +101,11 @@ class CNNSpec:
         architecture: "profile" or "seed".
         width: channels of the first convolution of :class:`ProfileCNN` (later ones 2x).
         hidden: width of the dense layers of :class:`ProfileCNN`.
+        family: for a scene-conditioned network, its scene family's ranges
+            ({feature: [low, high]}, :meth:`~galileo_jax.scene_family.SceneFamily.to_dict`);
+            ``fps`` is then the rate of the network's own time grid, onto which a video's
+            positions are resampled (:func:`family_network_input`). None: a network for one
+            scene at one frame rate.
     """
 
     scene: str
@@ -115,10 +120,25 @@ class CNNSpec:
     architecture: str = "profile"
     width: int = 32
     hidden: int = 128
+    family: dict | None = None
 
     @property
     def dim(self) -> int:
         return len(self.names)
+
+    @property
+    def n_scene(self) -> int:
+        """Scene features F the network reads (0: a network for one scene; else the
+        :data:`~galileo_jax.scene_family.FEATURES` of a scene family)."""
+        from galileo_jax.scene_family import FEATURES
+
+        return 0 if self.family is None else len(FEATURES)
+
+    @property
+    def channels(self) -> int:
+        """Channels of one input sample: T traces, then the F scene features (constant over
+        time), then the mask."""
+        return self.n_traces + self.n_scene + 1
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -151,6 +171,25 @@ class CNNSpec:
         return spec
 
 
+    @classmethod
+    def for_family(cls, family, fps: float = 30.0, **kw) -> "CNNSpec":
+        """The spec of a scene-conditioned network for ``family``
+        (:class:`~galileo_jax.scene_family.SceneFamily`), reading profiles resampled to ``fps``
+        (its time grid). Its coordinates are every family scene's (k1, k2, phi, dt_release,
+        the same bounds for all).
+
+        Raises:
+            ValueError: as :meth:`for_scene`; the seed's architecture (it reads no scene).
+        """
+        from galileo_jax.scene_family import family_scene
+
+        scene = family_scene(0.5 * (family.lower + family.upper))
+        base = cls.for_scene(scene, fps, **kw)
+        if base.architecture != "profile":
+            raise ValueError("a scene-conditioned network needs architecture 'profile'")
+        return replace(base, scene="family", scene_hash="family", family=family.to_dict())
+
+
 class SeedCNN(nnx.Module):
     """The seed's network (NOTES.md "CNN"), ``x (B, L, T + 1) -> (B, 2, d)``.
 
@@ -181,8 +220,11 @@ class SeedCNN(nnx.Module):
 
 
 class ProfileCNN(nnx.Module):
-    """The default network, ``x (B, L, T + 1) -> (B, 2, d)``: row 0 the mean mu of z, row 1
-    the SD s of z (softplus, at least :data:`MIN_SD`).
+    """The default network, ``x (B, L, T + F + 1) -> (B, 2, d)``: row 0 the mean mu of z, row 1
+    the SD s of z (softplus, at least :data:`MIN_SD`). F = ``n_scene`` scene features (0 for a
+    one-scene network) sit between the traces and the mask, constant over time; the
+    convolutions read the traces and the mask, and the features join their flattened output
+    before the dense layers.
 
     Five 1-D convolutions over time (kernel 5, 5, 5, 5, 3; ``width``, ``width``, 2 ``width``,
     2 ``width``, 2 ``width`` channels; GELU), average-pooled by 2 after the 2nd, 4th and 5th,
@@ -190,24 +232,28 @@ class ProfileCNN(nnx.Module):
     then Dense ``hidden`` -> Dense ``hidden`` -> Dense 2d.
     """
 
-    def __init__(self, n_traces: int, dim: int, n_samples: int, width: int = 32, hidden: int = 128, *,
-                 rngs: nnx.Rngs):
+    def __init__(self, n_traces: int, dim: int, n_samples: int, width: int = 32, hidden: int = 128,
+                 n_scene: int = 0, *, rngs: nnx.Rngs):
         w2 = 2 * width
+        self.n_traces, self.n_scene = n_traces, n_scene
         self.convs = nnx.List([nnx.Conv(n_traces + 1, width, 5, rngs=rngs), nnx.Conv(width, width, 5, rngs=rngs),
                                nnx.Conv(width, w2, 5, rngs=rngs), nnx.Conv(w2, w2, 5, rngs=rngs),
                                nnx.Conv(w2, w2, 3, rngs=rngs)])
-        self.dense1 = nnx.Linear((n_samples // 8) * w2, hidden, rngs=rngs)
+        self.dense1 = nnx.Linear((n_samples // 8) * w2 + n_scene, hidden, rngs=rngs)
         self.dense2 = nnx.Linear(hidden, hidden, rngs=rngs)
         self.out = nnx.Linear(hidden, 2 * dim, rngs=rngs)
         self.dim = dim
 
     def __call__(self, x: jax.Array) -> jax.Array:
-        y = x
+        T, F = self.n_traces, self.n_scene
+        y = jnp.concatenate([x[..., :T], x[..., T + F:]], axis=-1) if F else x
         for i, conv in enumerate(self.convs):
             y = nnx.gelu(conv(y))
             if i in (1, 3, 4):
                 y = nnx.avg_pool(y, (2,), (2,))
         y = y.reshape(y.shape[0], -1)
+        if F:  # the scene's features join the flattened convolution features
+            y = jnp.concatenate([y, x[:, 0, T:T + F]], axis=-1)
         y = nnx.gelu(self.dense2(nnx.gelu(self.dense1(y))))
         out = self.out(y).reshape(-1, 2, self.dim)
         return jnp.stack([out[:, 0], jax.nn.softplus(out[:, 1]) + MIN_SD], axis=1)
@@ -218,7 +264,7 @@ def build_network(spec: CNNSpec, seed: int = 0) -> nnx.Module:
     rngs = nnx.Rngs(seed)
     if spec.architecture == "seed":
         return SeedCNN(spec.n_traces, spec.dim, rngs=rngs)
-    return ProfileCNN(spec.n_traces, spec.dim, spec.n_samples, spec.width, spec.hidden, rngs=rngs)
+    return ProfileCNN(spec.n_traces, spec.dim, spec.n_samples, spec.width, spec.hidden, spec.n_scene, rngs=rngs)
 
 
 class Prediction(NamedTuple):
@@ -261,8 +307,8 @@ def predict(spec: CNNSpec, graphdef, params, x: jax.Array) -> Prediction:
     Raises:
         ValueError: ``x`` does not have the spec's shape (L, T + 1) per example.
     """
-    if x.shape[1:] != (spec.n_samples, spec.n_traces + 1):
-        raise ValueError(f"network input must have shape (B, {spec.n_samples}, {spec.n_traces + 1}), got {x.shape}")
+    if x.shape[1:] != (spec.n_samples, spec.channels):
+        raise ValueError(f"network input must have shape (B, {spec.n_samples}, {spec.channels}), got {x.shape}")
     out = nnx.merge(graphdef, params)(x)
     if spec.architecture == "seed":
         lo, hi = _space_bounds(spec)
@@ -346,6 +392,62 @@ def network_input(spec: CNNSpec, obs: Observation) -> tuple[np.ndarray, float]:
     return x, float(shift)
 
 
+def family_network_input(spec: CNNSpec, obs: Observation, features) -> tuple[np.ndarray, float]:
+    """The input of a scene-conditioned network (``spec.family``) for an observed video.
+
+    The tracked positions (``obs.positions``, at the video's frame times) are resampled by
+    linear interpolation to the network's time grid, ``spec.n_samples`` + 1 times 1 / ``spec.fps``
+    apart from ``release_offset`` s before the tracker's release estimate, and differenced: a
+    video at any frame rate inside the family's gives the profile on the grid the network was
+    trained on (:func:`~galileo_jax.inference.cnn_training.simulate_family_examples` resamples
+    its simulated frames the same way). A grid sample is observed (mask 1) where both its ends
+    lie between frames used by the fit (``obs.mask``'s velocity samples) with no unused sample
+    between them.
+
+    Args:
+        spec: the network's spec (``spec.family`` set).
+        obs: the observation (2 objects).
+        features: (F,) the scene's features (:func:`~galileo_jax.scene_family.scene_features`,
+            with the video's frame rate).
+
+    Returns:
+        x: (L, T + F + 1) float32: traces (m/s), normalised features, mask.
+        shift: 0.0 s (the grid starts at the tracker's release estimate minus ``release_offset``,
+            where training puts the release before its correction).
+
+    Raises:
+        galileo_jax.scene_family.OutOfFamily: a feature outside the family's ranges (names it).
+        CNNError: the observation's traces do not match the spec.
+    """
+    from galileo_jax.scene_family import SceneFamily
+
+    family = SceneFamily.from_dict(spec.family)
+    family.check(features)
+    prof = np.asarray(obs.profile, np.float64)
+    if prof.shape[0] != spec.n_traces:
+        raise CNNError(f"the CNN reads {spec.n_traces} velocity traces, the video has {prof.shape[0]}")
+    L, T = spec.n_samples, spec.n_traces
+    ft = np.asarray(obs.frame_times, np.float64)
+    pos = np.asarray(obs.positions, np.float64).reshape(len(ft), -1)  # (N, T)
+    used = np.asarray(obs.mask, bool)
+    grid = obs.release_time - spec.release_offset + np.arange(L + 1) / spec.fps
+    # grid time t lies in velocity sample k = the frame interval [ft[k], ft[k + 1]) it falls in
+    k = np.searchsorted(ft, grid, side="right") - 1
+    inside = (k >= 0) & (k < len(used))
+    seg = np.where(inside, k, 0)
+    good = inside & used[seg]
+    # every frame interval a grid sample spans is used: count the unused ones below each index
+    bad_before = np.concatenate([[0], np.cumsum(~used)])
+    p = np.stack([np.interp(grid, ft, pos[:, j]) for j in range(T)], axis=1)  # (L + 1, T)
+    v = np.diff(p, axis=0) * spec.fps
+    ok = good[:-1] & good[1:] & (bad_before[np.where(inside[1:], seg[1:], 0) + 1] - bad_before[seg[:-1]] == 0)
+    x = np.zeros((L, spec.channels), np.float32)
+    x[ok, :T] = v[ok]
+    x[:, T:T + spec.n_scene] = family.normalise(np.asarray(features, np.float64))[None]
+    x[ok, -1] = 1.0
+    return x, 0.0
+
+
 class TrainedModel(NamedTuple):
     """A trained network ready to predict.
 
@@ -390,15 +492,22 @@ class CNNEstimate(NamedTuple):
     model: TrainedModel
 
 
-def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.Array, n_draws: int = 256) -> CNNEstimate:
+def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.Array, n_draws: int = 256,
+             features=None) -> CNNEstimate:
     """Run ``model`` on an observed video and return the estimate in ``space``'s coordinates.
 
     The release-time correction is shifted from the window's frame to the tracker's estimate
     (:func:`network_input`) and every coordinate is kept 0.1% of its range inside the bounds.
 
+    ``features``: (F,) the scene's features (:func:`~galileo_jax.scene_family.scene_features`),
+    which a scene-conditioned network (``model.spec.family``) reads with the profile
+    (:func:`family_network_input`).
+
     Raises:
         CNNError: the model predicts other coordinates than ``space`` has (e.g. the fit adds
             effects, which the CNN does not know), or the video does not fit the model.
+        galileo_jax.scene_family.OutOfFamily: a scene-conditioned network and a scene outside
+            its family.
     """
     import time
 
@@ -407,7 +516,12 @@ def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.
         raise CNNError(f"the CNN predicts {list(spec.names)}, this fit has {list(space.names)}; the CNN knows the "
                        f"base model only: drop --effects, or use --method grad or mh")
     t0 = time.perf_counter()
-    x, shift = network_input(spec, obs)
+    if spec.family is not None:
+        if features is None:
+            raise CNNError("a scene-conditioned CNN needs the scene's features; give features=scene_features(...)")
+        x, shift = family_network_input(spec, obs, features)
+    else:
+        x, shift = network_input(spec, obs)
     pred = predict(spec, model.graphdef, model.params, jnp.asarray(x[None]))
     mu, sd = np.asarray(pred.mu[0], np.float64), np.asarray(pred.sd[0], np.float64)
     z = mu[None] + sd[None] * np.asarray(jax.random.normal(key, (n_draws, spec.dim)), np.float64)

@@ -92,33 +92,59 @@ def find_model(scene: Scene, fps: float, path: Path | str | None = None,
     """The trained model for ``scene`` at ``fps``: ``path`` if given, else the first folder
     under :func:`model_dirs` whose spec matches the scene's physics (:func:`~galileo_jax.inference.cnn.scene_hash`) and
     frame rate (within :data:`FPS_TOLERANCE`), preferring the default architecture (and,
-    among equals, the earlier folder).
+    among equals, the earlier folder); where none does, the first scene-conditioned network
+    (``spec.family``) whose family holds the scene (:func:`check_family`).
 
     Raises:
         CNNError: ``path`` does not fit the scene, or no shipped model does (the message says
             how to train one).
+        galileo_jax.scene_family.OutOfFamily: only a scene-conditioned network was left, and the
+            scene lies outside its family (the message names the input).
     """
     want = scene_hash(scene)
     if path is not None:
         model = load_model(Path(path))
+        if model.spec.family is not None:
+            check_family(model.spec, scene, fps)
+            return model
         if model.spec.scene_hash != want:
             raise CNNError(f"the CNN in {path} was trained on scene {model.spec.scene!r}, whose physics differ "
                            f"from scene {scene.name!r}; train one for this scene (python -m galileo_jax.train)")
         return model
-    found = []
+    found, family = [], []
     metas = [m for d in model_dirs() for m in sorted(d.glob("*/model.json"))]
     for order, meta in enumerate(metas):
         try:
             spec = CNNSpec.from_json(json.loads(meta.read_text())["spec"])
         except (ValueError, KeyError, TypeError):
             continue
-        if spec.scene_hash == want and abs(spec.fps - fps) <= FPS_TOLERANCE * spec.fps \
+        if spec.family is not None:
+            if architecture in (None, spec.architecture):
+                family.append((spec, meta.parent))
+        elif spec.scene_hash == want and abs(spec.fps - fps) <= FPS_TOLERANCE * spec.fps \
                 and (architecture is None or spec.architecture == architecture):
             found.append((spec.architecture != "profile", order, meta.parent))
+    if not found and family:  # a scene-conditioned network serves a scene inside its family
+        spec, folder = family[0]
+        check_family(spec, scene, fps)
+        return load_model(folder)
     if not found:
         raise CNNError(f"no trained CNN matches scene {scene.name!r} at {fps:g} fps; train one: python -m "
                        f"galileo_jax.train --config configs/cnn_ramp20.yaml --scene YOUR_SCENE.yaml --out models/NAME")
     return load_model(sorted(found)[0][2])
+
+
+def check_family(spec: CNNSpec, scene: Scene, fps: float) -> None:
+    """Raise unless ``scene`` filmed at ``fps`` lies inside the family of the scene-conditioned
+    network ``spec``.
+
+    Raises:
+        galileo_jax.scene_family.OutOfFamily: one line naming the scene's input that is outside
+            (or the kind of scene the family does not hold).
+    """
+    from galileo_jax.scene_family import SceneFamily, scene_features
+
+    SceneFamily.from_dict(spec.family).check(scene_features(scene, fps), f"scene {scene.name!r}")
 
 
 def model_dirs() -> list[Path]:

@@ -105,3 +105,91 @@ def simulate_examples(engine, spec: CNNSpec, noise: NoiseModel, theta: jax.Array
     # float32 throughout: with x64 on, float64 inputs would promote the convolutions to float64,
     # 3x slower per training step (measured: 2.8 s vs 0.9 s of simulation).
     return jnp.concatenate([v * mask, mask], axis=-1).astype(jnp.float32)
+
+
+def family_space(spec: CNNSpec) -> ParamSpace:
+    """The coordinates of a scene-conditioned network (``spec.family``): every family scene's
+    :class:`ParamSpace` (k1, k2, phi, dt_release, with the same bounds)."""
+    from galileo_jax.scene_family import SceneFamily, family_scene
+
+    family = SceneFamily.from_dict(spec.family)
+    return ParamSpace.from_scene(family_scene(0.5 * (family.lower + family.upper)))
+
+
+def family_prior(space: ParamSpace, features: jax.Array, key: jax.Array, slide_margin: float = 0.02) -> jax.Array:
+    """One draw of theta per family scene (features (n, F) -> (n, d)): :func:`training_prior`
+    with each scene's own ramp angle (object 1's friction below tan(angle) - ``slide_margin``,
+    so it slides). Pure."""
+    from galileo_jax.scene_family import family_angle
+
+    n = features.shape[0]
+    theta = space.sample_prior(key, n)
+    j = space.index("k1")
+    lo = space.lower[j]
+    hi = jnp.minimum(space.upper[j], jnp.tan(family_angle(features)) - slide_margin)
+    u = jax.random.uniform(jax.random.fold_in(key, 1), (n,), minval=1e-6, maxval=1 - 1e-6)
+    return theta.at[:, j].set(lo + (hi - lo) * u)
+
+
+def simulate_family_examples(spec: CNNSpec, noise: NoiseModel, features: jax.Array, theta: jax.Array,
+                             key: jax.Array, views: int = 1) -> jax.Array:
+    """Network inputs (n * views, L, T + F + 1) float32 of a scene-conditioned network
+    (``spec.family``) for scenes ``features`` (n, F) and parameters ``theta`` (n, d) (pure, jittable).
+
+    One C MuJoCo rollout per row, each of its own scene
+    (:func:`~galileo_jax.physics.simulate_family.family_rollout_poses`), released at
+    ``release_offset`` + theta's ``dt_release`` after the window's start. Then, per view, a
+    video as a camera would record it: frames at the scene's frame rate (feature ``fps``) from
+    a random phase, object centres with position noise e ~ N(0, sd^2) per frame and trace (sd
+    log-uniform on ``noise.position_sd``), resampled to the network's grid (``spec.fps``) by
+    linear interpolation and differenced, as :func:`~galileo_jax.inference.cnn.family_network_input`
+    resamples a tracked video; then cut and masked as :func:`simulate_examples` does (a valid
+    length, a masked prefix for a third). A rollout that blew up gives an all-zero example
+    (skipped by the loss). Rows are grouped by view (view-major).
+    """
+    from galileo_jax.physics.simulate import Trajectory, sample_poses
+    from galileo_jax.physics.simulate_family import FAMILY_DT, family_rollout_poses
+    from galileo_jax.scene_family import FEATURES, SceneFamily
+
+    family = SceneFamily.from_dict(spec.family)
+    space = family_space(spec)
+    n = theta.shape[0]
+    L, T, F = spec.n_samples, spec.n_traces, spec.n_scene
+    grid_dt = 1.0 / spec.fps
+    window = (L + 1) * grid_dt
+    n_steps = int(math.ceil(window / FAMILY_DT)) + 1
+    theta = jnp.asarray(theta, jnp.float64)
+    features = jnp.asarray(features, jnp.float64)
+    phys = space.physical(theta)
+    poses = jax.vmap(lambda f, m, k: family_rollout_poses(f, m, k, n_steps))(features, phys.mass, phys.friction)
+    release = spec.release_offset + space.release_offset(theta)  # (n,) s after the window's start
+    fps_all = features[:, FEATURES.index("fps")]
+    n_frames = int(math.ceil(window * float(family.upper[FEATURES.index("fps")]))) + 3
+    b = n * views
+    k_ph, k_sd, k_e, k_len, k_pre, k_has = jax.random.split(key, 6)
+    poses, release, fps_b = (jnp.tile(a, (views,) + (1,) * (a.ndim - 1)) for a in (poses, release, fps_all))
+    # frames from a random phase, the first one before the window's start
+    phase = jax.random.uniform(k_ph, (b,), jnp.float64) / fps_b
+    t_frames = phase[:, None] + (jnp.arange(n_frames)[None] - 1.0) / fps_b[:, None]  # (b, Nf)
+
+    def centres(pose, t):
+        return sample_poses(Trajectory(pose, FAMILY_DT), t)[..., :2].reshape(t.shape[0], -1)  # (Nf, T)
+
+    pos = jax.vmap(centres)(poses, t_frames - release[:, None])
+    lo, hi = math.log(noise.position_sd[0]), math.log(noise.position_sd[1])
+    sd = jnp.exp(jax.random.uniform(k_sd, (b, 1, T), jnp.float64, minval=lo, maxval=hi))
+    pos = pos + sd * jax.random.normal(k_e, pos.shape, jnp.float64)
+    grid = jnp.arange(L + 1) * grid_dt
+    on_grid = jax.vmap(lambda t, p: jax.vmap(lambda c: jnp.interp(grid, t, c), in_axes=1, out_axes=1)(p))(t_frames, pos)
+    v = jnp.diff(on_grid, axis=1) / grid_dt  # (b, L, T)
+    clean = jnp.diff(jax.vmap(centres)(poses, grid[None] - release[:, None]), axis=1) / grid_dt
+    ok = jnp.all(jnp.isfinite(clean) & (jnp.abs(clean) <= MAX_SPEED), axis=(1, 2))
+    v = jnp.where(ok[:, None, None], v, 0.0).astype(jnp.float32)
+    length = jax.random.randint(k_len, (b, 1), noise.min_samples, L + 1)
+    prefix = jnp.where(jax.random.uniform(k_has, (b, 1)) < 1 / 3,
+                       jax.random.randint(k_pre, (b, 1), 0, noise.prefix + 1), 0)
+    k = jnp.arange(L)[None]
+    mask = ((k >= prefix) & (k < length) & ok[:, None]).astype(jnp.float32)[..., None]  # (b, L, 1)
+    scene = jnp.broadcast_to(family.normalise(jnp.tile(features, (views, 1)))[:, None, :].astype(jnp.float32),
+                             (b, L, F))
+    return jnp.concatenate([v * mask, scene, mask], axis=-1).astype(jnp.float32)
