@@ -252,10 +252,10 @@ def test_several_videos_bad_input(tmp_path):
 def test_cnn_bad_input(tmp_path):
     """fit --method cnn / --init cnn: no model for the scene, a folder that is no model, and
     combinations that do not apply are one-line errors (before any tracking)."""
-    ramp10 = EXAMPLE.with_suffix(".yaml").read_text().replace("angle_deg: 20.0", "angle_deg: 10.0")
-    video = copy_example(tmp_path, ramp10)
+    ramp60 = EXAMPLE.with_suffix(".yaml").read_text().replace("angle_deg: 20.0", "angle_deg: 60.0")
+    video = copy_example(tmp_path, ramp60)  # no per-scene network, and outside the shipped family network's ranges
     assert_one_line_error(run_cli("galileo_jax.fit", str(video), "--method", "cnn"),
-                          "no trained CNN matches scene", "galileo_jax.train")
+                          "angle_deg = 60 deg is outside", "5-45", "galileo_jax.train")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--init", "cnn", "--cnn-model", str(tmp_path)),
                           "not a trained CNN model")
     assert_one_line_error(run_cli("galileo_jax.fit", str(EXAMPLE), "--method", "seed", "--init", "cnn"), "--init cnn")

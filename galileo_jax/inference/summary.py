@@ -467,6 +467,12 @@ def summarize_cnn(est, space: ParamSpace, loglik: float) -> dict:
                    "loglik": float(loglik), "time_s": float(est.time_s),
                    "note": "amortised estimate of a network trained on simulations of this scene; its intervals are "
                            "calibrated on simulations (benchmarks/results/cnn_accuracy.md), not on this video"}
+    if m.spec.family is not None:
+        diagnostics["note"] = ("amortised estimate of a scene-conditioned network, trained on simulations of scenes "
+                               "drawn from its family (ramp angle, sizes, starts, frame rate), read with this scene's "
+                               "features; its intervals are calibrated on simulations (benchmarks/results/"
+                               "cnn_family.md), not on this video")
+        diagnostics["family"] = m.spec.family
     return {"method": "cnn", "parameters": params, "diagnostics": diagnostics}
 
 
