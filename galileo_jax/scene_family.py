@@ -121,6 +121,11 @@ class SceneFamily:
         """(F,) upper ends."""
         return np.array([r[1] for r in self.ranges])
 
+    def middle(self) -> np.ndarray:
+        """(F,) the features at the middle of every range: a scene that stands for the family
+        where only its kind matters (its parameter coordinates and their bounds)."""
+        return 0.5 * (self.lower + self.upper)
+
     def normalise(self, features):
         """Features (..., F) mapped to [-1, 1] over the family's ranges (log scale for
         :data:`LOG_FEATURES`): what the network reads. NumPy or JAX in, the same out (pure)."""

@@ -183,8 +183,7 @@ class CNNSpec:
         """
         from galileo_jax.scene_family import family_scene
 
-        scene = family_scene(0.5 * (family.lower + family.upper))
-        base = cls.for_scene(scene, fps, **kw)
+        base = cls.for_scene(family_scene(family.middle()), fps, **kw)
         if base.architecture != "profile":
             raise ValueError("a scene-conditioned network needs architecture 'profile'")
         return replace(base, scene="family", scene_hash="family", family=family.to_dict())

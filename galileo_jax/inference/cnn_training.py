@@ -40,12 +40,18 @@ def training_prior(space: ParamSpace, scene: Scene, key: jax.Array, n: int, slid
     """
     theta = space.sample_prior(key, n)
     if "k1" in space.names and scene.placement(0) == "ramp":
-        j = space.index("k1")
-        lo = space.lower[j]
-        hi = min(space.upper[j], math.tan(scene.ramp.angle) - slide_margin)
-        u = jax.random.uniform(jax.random.fold_in(key, 1), (n,), minval=1e-6, maxval=1 - 1e-6)
-        theta = theta.at[:, j].set(lo + (hi - lo) * u)
+        theta = _k1_sliding(space, theta, key, math.tan(scene.ramp.angle) - slide_margin)
     return theta
+
+
+def _k1_sliding(space: ParamSpace, theta: jax.Array, key: jax.Array, k1_max) -> jax.Array:
+    """``theta`` (n, d) with k1 redrawn uniformly between its lower bound and min(its upper
+    bound, ``k1_max``) (a scalar or (n,): tan(angle) - margin, where object 1 slides)."""
+    j = space.index("k1")
+    lo = space.lower[j]
+    hi = jnp.minimum(space.upper[j], k1_max)
+    u = jax.random.uniform(jax.random.fold_in(key, 1), (theta.shape[0],), minval=1e-6, maxval=1 - 1e-6)
+    return theta.at[:, j].set(lo + (hi - lo) * u)
 
 
 #: The seed's training and test prior (NOTES.md "CNN", dissertation 4.3): frictions uniform on
@@ -112,8 +118,7 @@ def family_space(spec: CNNSpec) -> ParamSpace:
     :class:`ParamSpace` (k1, k2, phi, dt_release, with the same bounds)."""
     from galileo_jax.scene_family import SceneFamily, family_scene
 
-    family = SceneFamily.from_dict(spec.family)
-    return ParamSpace.from_scene(family_scene(0.5 * (family.lower + family.upper)))
+    return ParamSpace.from_scene(family_scene(SceneFamily.from_dict(spec.family).middle()))
 
 
 def family_prior(space: ParamSpace, features: jax.Array, key: jax.Array, slide_margin: float = 0.02) -> jax.Array:
@@ -122,13 +127,8 @@ def family_prior(space: ParamSpace, features: jax.Array, key: jax.Array, slide_m
     so it slides). Pure."""
     from galileo_jax.scene_family import family_angle
 
-    n = features.shape[0]
-    theta = space.sample_prior(key, n)
-    j = space.index("k1")
-    lo = space.lower[j]
-    hi = jnp.minimum(space.upper[j], jnp.tan(family_angle(features)) - slide_margin)
-    u = jax.random.uniform(jax.random.fold_in(key, 1), (n,), minval=1e-6, maxval=1 - 1e-6)
-    return theta.at[:, j].set(lo + (hi - lo) * u)
+    theta = space.sample_prior(key, features.shape[0])
+    return _k1_sliding(space, theta, key, jnp.tan(family_angle(features)) - slide_margin)
 
 
 def simulate_family_examples(spec: CNNSpec, noise: NoiseModel, features: jax.Array, theta: jax.Array,
