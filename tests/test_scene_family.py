@@ -196,43 +196,22 @@ def test_family_training_runs_and_saves_a_family_model(tmp_path):
         train(cfg.model_copy(update={"engine": "mjx"}), out=tmp_path / "x", progress=False)
 
 
-def _run_fit(*args: str):
-    import os
-    import subprocess
-    import sys
+def test_a_family_network_named_by_path_serves_its_family_and_names_an_input_out_of_range():
+    """``fit --cnn-model DIR`` with a scene-conditioned network: a scene of its family gets it
+    (whatever the scene's own network), one outside gets the one-line error naming the input.
+    (``fit --method cnn`` end to end with the shipped family network: ``tests/test_sweep.py``'s
+    10 degree video; the error on the command line: ``tests/test_cli.py``.)"""
+    from galileo_jax.inference import cnn_files
 
-    env = dict(os.environ, MUJOCO_GL="egl", JAX_PLATFORMS="cpu")
-    return subprocess.run([sys.executable, "-m", "galileo_jax.fit", *args], capture_output=True, text=True, env=env,
-                          timeout=600)
-
-
-def test_fit_reads_a_scene_with_the_family_network_and_names_an_input_out_of_range(tmp_path):
-    """``fit --method cnn`` with a scene-conditioned network: a scene of the family is fitted end to
-    end (the network reads the scene's features); a scene outside it is a one-line error naming
-    the input, before any tracking."""
-    import shutil
-    from pathlib import Path
-
-    cfg = TrainConfig(family={}, steps=2, rollouts=4, views=1, validation=4, log_every=2, checkpoint_every=2,
-                      width=4, hidden=8)
-    model = tmp_path / "fam"
-    train(cfg, out=model, progress=False)
-    example = Path(__file__).resolve().parents[1] / "examples" / "ramp20_example.mp4"
-    video = tmp_path / "clip.mp4"
-    shutil.copy(example, video)
-    text = example.with_suffix(".yaml").read_text()
-    (tmp_path / "clip.yaml").write_text(text.replace("angle_deg: 20.0", "angle_deg: 60.0"))
-    proc = _run_fit(str(video), "--method", "cnn", "--cnn-model", str(model), "--out", str(tmp_path / "o1"))
-    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("Failed to import")]
-    assert proc.returncode != 0 and len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    assert lines[0].startswith("error: ") and "angle_deg = 60" in lines[0] and "5-45" in lines[0]
-    (tmp_path / "clip.yaml").write_text(text)
-    proc = _run_fit(str(video), "--method", "cnn", "--cnn-model", str(model), "--out", str(tmp_path / "o2"))
-    assert proc.returncode == 0, proc.stderr
-    result = json.loads((tmp_path / "o2" / "result.json").read_text())
-    assert result["method"] == "cnn"
-    k1 = result["parameters"]["k1"]
-    assert 0 < k1["estimate"] < 1 and k1["interval90"][0] <= k1["estimate"] <= k1["interval90"][1]
+    folder = cnn_files.MODELS_DIR / "family_cnn"
+    scene = load_scene("scenes/ramp_20.yaml")
+    assert cnn_files.find_model(scene, 30.0, folder).spec.family is not None
+    steep = scene.model_copy(update={"ramp": scene.ramp.model_copy(update={"angle_deg": 60.0})})
+    with pytest.raises(OutOfFamily, match=r"scene 'ramp_20': angle_deg = 60 deg is outside .* 5-45 deg") as err:
+        cnn_files.find_model(steep, 30.0, folder)
+    assert "\n" not in str(err.value)
+    with pytest.raises(OutOfFamily, match="fps = 500"):
+        cnn_files.find_model(scene, 500.0, folder)
 
 
 def test_shipped_family_network_on_a_scene_without_its_own():
