@@ -20,7 +20,10 @@ settings: tracked from the pixels, objects found automatically, the scene file a
 the renderer, which states no scale tolerance, so grad and mh fit the camera's scale error as a
 nuisance within +-3% and cnn takes the scale as exact). The intervals are the central 50% and
 90% intervals of the fit's posterior draws (``posterior.nc``: mh's chains, grad's and cnn's
-Gaussian approximation); the rank is the share of draws below the truth. ``grad-plain`` is grad's own fits with the
+Gaussian approximation); the rank is the share of draws below the truth. ``grad`` is grad
+from the prior (``--init prior``: four starts from a screen of the whole prior); ``grad+cnn``
+is grad started from the trained CNN's estimate (``--init cnn``), which ``fit`` does by default
+wherever a network reads the scene, as it does for every video here. ``grad-plain`` is grad's own fits with the
 Gauss-Newton intervals it had before widening them to the sandwich estimate's (draws shrunk back
 about the estimate by each parameter's widening factor): the widening's effect on the same fits.
 A method name ending ``@ensK`` (e.g. ``grad@ens8``) fits with ``likelihood.ensemble: K``
@@ -108,7 +111,7 @@ def truth_record(draws: np.ndarray, truth: float) -> dict:
 
 
 def fit_one(video: Path, method: str) -> dict:
-    """Fit ``video`` as ``fit --method METHOD`` does (``grad+cnn``: ``--method grad --init cnn``;
+    """Fit ``video`` as ``fit --method METHOD --init prior`` does (``grad+cnn``: ``--method grad --init cnn``;
     ``grad@ens8``: ``--method grad --ensemble 8``);
     its record (an ``error`` if it failed)."""
     from galileo_jax.config import FitConfig

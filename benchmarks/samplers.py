@@ -57,6 +57,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -197,11 +198,11 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
 
     from galileo_jax.config import ensemble_for
     from galileo_jax.inference import fit_grad, run_mh, run_seed_mh, summarize_mh
-    from galileo_jax.inference import cnn
+    from galileo_jax.errors import GalileoError
     from galileo_jax.inference import cnn_files
     from galileo_jax.inference.grad import count_rollouts
     from galileo_jax.observe import observe
-    from galileo_jax.pipeline import grad_start_from_cnn
+    from galileo_jax.pipeline import cnn_estimate, grad_start_from_cnn
     from galileo_jax.scene import load_scene
 
     cfg = fit_config(s)
@@ -278,7 +279,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
         if scene.name not in models:
             try:
                 models[scene.name] = cnn_files.find_model(scene, obs.fps, cfg.cnn.model)
-            except cnn.CNNError as err:
+            except GalileoError as err:  # CNNError, OutOfFamily
                 models[scene.name] = err
         model = models[scene.name]
         if isinstance(model, Exception):
@@ -286,7 +287,7 @@ def run_video(video: Path, s: dict, key_seed: int, models: dict, warm: bool = Fa
                 done(name, {"status": NO_MODEL, "message": str(model)})
         else:
             t = time.perf_counter()
-            est = cnn.estimate(model, obs, space, keys["cnn"])
+            est = cnn_estimate(problem, cfg, keys["cnn"], model)  # a scene-conditioned network reads the scene too
             elapsed = time.perf_counter() - t
             done("cnn", {**evaluate(est.theta), "time_s": elapsed, "simulations": 0,
                          "inside90": evaluate.inside({n: est.interval90[space.names.index(n)] for n in NAMES})})
@@ -376,7 +377,7 @@ def write_tables(work: Path, s: dict) -> None:
                                                     "dissertation": [dict(zip(("method", "l1", "l2"), d))
                                                                      for d in DISSERTATION],
                                                     "records": records})
-    cmd = "python benchmarks/samplers.py " + " ".join(sys.argv[1:])
+    cmd = "python benchmarks/samplers.py " + shlex.join(sys.argv[1:])
     lines = [f"# Samplers on rendered videos ({len(records)} videos: "
              + ", ".join(f"{len(groups[sc])} {sc}" for sc in SCENES) + ")", "",
              f"machine: {mach}", "", f"Command: `{cmd.strip()}` (module docstring of `benchmarks/samplers.py`).",

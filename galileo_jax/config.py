@@ -18,6 +18,12 @@ from galileo_jax.likelihood import DEFAULT_KIND, DEFAULT_SD_MODEL
 from galileo_jax.scene import MAX_SCALE_TOLERANCE
 
 
+#: Where grad and mh start (``fit --init``): "auto" (grad from the trained CNN's estimate where a
+#: network reads the video, else from the prior; mh from the prior), "prior" or "cnn"
+#: (:func:`galileo_jax.pipeline.run_fit`).
+INITS = ("auto", "prior", "cnn")
+
+
 class ConfigError(GalileoError):
     """The fit configuration file is missing or invalid."""
 

@@ -1,4 +1,4 @@
-"""``python -m galileo_jax.fit VIDEO --method grad|mh|cnn|seed [--init cnn]``: physical properties from a ramp video.
+"""``python -m galileo_jax.fit VIDEO --method grad|mh|cnn|seed [--init ...]``: physical properties from a ramp video.
 
 Pipeline: read the video and scene -> track the objects -> velocity profiles -> fit
 (m1, k1, m2, k2) against vmapped MJX rollouts -> report (console, ``result.json``,
@@ -28,6 +28,8 @@ METHODS = ("grad", "mh", "cnn", "seed")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from galileo_jax.config import INITS
+
     p = OneLineParser(prog="python -m galileo_jax.fit",
                       description="Estimate masses and friction coefficients from a video of objects on a ramp "
                                   "(several videos of one setup: one joint fit with shared parameters).")
@@ -38,8 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="grad: Levenberg-Marquardt (fast); mh: Metropolis-Hastings posterior; "
                         "cnn: the trained network's amortised estimate (one forward pass); "
                         "seed: the seed's coin-toss sampler (baseline, one video)")
-    p.add_argument("--init", default="prior", choices=("prior", "cnn"),
-                   help="grad/mh: start from the prior (default) or from the trained CNN's estimate")
+    p.add_argument("--init", default="auto", choices=INITS,
+                   help="auto (default): grad starts from the trained CNN's estimate where a network reads "
+                        "the scene (else from the prior), mh from the prior; prior; cnn: grad/mh from the CNN, "
+                        "an error where no network reads the scene")
     p.add_argument("--cnn-model", help="trained CNN folder (default: the model matching the scene in galileo_jax/models/, $GALILEO_JAX_MODELS or ./models)")
     p.add_argument("--per-video", help="several videos: parameters fitted per video, comma-separated "
                                        "(default: all shared except dt_release and v0)")
@@ -125,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         raise GalileoError(f"--method {args.method} fits one video; use --method grad or mh for several")
     if args.init == "cnn" and args.method in ("seed", "cnn"):
         raise GalileoError(f"--init cnn starts grad or mh; --method {args.method} has no starting point")
-    if len(inputs) > 1 and args.init != "prior":
+    if len(inputs) > 1 and args.init == "cnn":
         raise GalileoError("--init cnn fits one video; a joint fit of several videos starts from the prior")
     if per_video and len(inputs) == 1:
         raise GalileoError("--per-video needs several videos")

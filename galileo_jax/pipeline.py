@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from galileo_jax.criticism.adequacy import adequacy as fit_adequacy
-from galileo_jax.config import FitConfig, ensemble_for
+from galileo_jax.config import INITS, FitConfig, ensemble_for
 from galileo_jax.errors import GalileoError
 from galileo_jax.fit_report import FitReport, JointFitReport, Posterior
 from galileo_jax.inference.problem import Problem
@@ -42,6 +42,7 @@ class Tracked:
         observation: the tracked :class:`Observation`.
         cnn_model: the trained CNN for the scene, when the fit needs one (else None).
         seconds: wall time of reading and tracking (s).
+        cnn_note: for ``init`` auto, why no network reads the scene (one line), else None.
     """
 
     video: Path
@@ -49,6 +50,7 @@ class Tracked:
     observation: Observation
     cnn_model: object
     seconds: float
+    cnn_note: str | None = None
 
 
 def _with_estimate(summary_dict: dict, key: str) -> tuple[dict, dict]:
@@ -67,10 +69,13 @@ def draw_subset(draws: np.ndarray, n: int, key) -> np.ndarray:
 
 
 def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, progress: bool, init: str = "prior",
-                        cnn_model=None):
+                        cnn_model=None, cnn_note: str | None = None):
     """Run the method; return (parameters dict, diagnostics, theta_best (d,), draws (S, d) or None,
     :class:`Posterior` or None).
 
+    ``init="auto"`` (``fit``'s default): grad as ``init="cnn"`` where a trained network reads
+    the video (``cnn_model`` found, :func:`track_video`, and its coordinates the fit's), else as
+    ``init="prior"``, saying why in ``diagnostics["init_note"]``; mh and seed from the prior.
     ``init="cnn"``: grad and mh start from the trained CNN's estimate (:func:`cnn_estimate`):
     grad runs one Levenberg-Marquardt start from it plus the best of a screen around it, as
     wide as the CNN's 90% interval and at least +-``cfg.cnn.local_screen`` of each range
@@ -79,14 +84,16 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     (unless ``--warmup`` is given). Without annealing, chains started where the CNN is unsure
     (k2, phi) stuck in wrong modes: R-hat 2.5 (benchmarks/results/cnn_videos_mh.md). The CNN's
     own estimate and time go into the diagnostics. ``cnn_model``: the trained model, if
+    already loaded (else found for the scene); ``cnn_note``: why none reads the scene
+    (:func:`cnn_model_for`), said in ``init_note``.
     already loaded (else found for the scene).
     """
     from galileo_jax.inference import summary
 
     k_run, k_sum = jax.random.split(key)
-    if init not in ("prior", "cnn"):
-        raise GalileoError(f"unknown --init {init!r}; choose prior or cnn")
-    start = None
+    if init not in INITS:
+        raise GalileoError(f"unknown --init {init!r}; choose one of {', '.join(INITS)}")
+    start, auto_note = None, None
     if init == "cnn" or method == "cnn":
         if method == "seed":
             raise GalileoError("--init cnn works with --method grad or mh; the seed's sampler starts from the prior")
@@ -97,8 +104,19 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             params, diag = _with_estimate(result, "median")
             post = Posterior(summary.posterior_draws(np.asarray(start.draws)[None], problem.space, k_sum), None, "cnn")
             return params, diag, start.theta, start.draws[:cfg.prediction.draws], post
-    cnn_diag = {} if start is None else {"init": "cnn", "cnn_theta": dict(zip(start.names, map(float, start.theta))),
-                                         "cnn_time_s": float(start.time_s), "cnn_model": str(start.model.path)}
+    elif init == "auto" and method == "grad":  # from the CNN where a network reads this video, else the prior
+        if cnn_model is None:
+            auto_note = cnn_note or "no trained CNN reads this scene"
+        else:
+            try:
+                start = cnn_estimate(problem, cfg, jax.random.fold_in(key, 7), cnn_model)
+            except GalileoError as err:  # CNNError, OutOfFamily: the network cannot read this fit
+                auto_note = str(err)
+    cnn_diag = {"init": "prior"} if start is None else {
+        "init": "cnn", "cnn_theta": dict(zip(start.names, map(float, start.theta))),
+        "cnn_time_s": float(start.time_s), "cnn_model": str(start.model.path)}
+    if auto_note:
+        cnn_diag["init_note"] = f"started from the prior: {auto_note}"
     if method == "grad":
         from galileo_jax.inference.grad import fit_grad
 
@@ -192,7 +210,8 @@ def mh_start_from_cnn(est, n_chains: int) -> dict:
     draws (fixed choice), with the initial proposal SD the median of the CNN's SDs in z (clipped
     to [0.01, 0.5]; 0.1 for a network without uncertainty)."""
     idx = np.random.default_rng(1).choice(len(est.draws), size=n_chains, replace=len(est.draws) < n_chains)
-    sd_z = float(np.clip(np.median(est.sd_z), 0.01, 0.5)) if np.any(est.sd_z > 0) else 0.1
+    known = np.asarray(est.sd_z)[np.isfinite(est.sd_z)]  # NaN: a nuisance the network does not read
+    sd_z = float(np.clip(np.median(known), 0.01, 0.5)) if np.any(known > 0) else 0.1
     return dict(init_theta=est.draws[idx], init_sd=sd_z)
 
 
@@ -276,12 +295,43 @@ def fit_engine(scene: Scene, cfg: FitConfig) -> str:
     return resolve_engine(cfg, scene_effects(scene, cfg.effects))
 
 
+def cnn_model_for(scene: Scene, fps: float, cfg: FitConfig, method: str, init: str) -> tuple[object, str | None]:
+    """``(model, note)``: the trained CNN a fit of ``scene`` filmed at ``fps`` uses (or None),
+    and for ``init`` auto with method grad why none is used (or None).
+
+    ``method`` cnn, ``init`` cnn, or a network named by ``cfg.cnn.model``: that network, else
+    the shipped one that reads the scene (:func:`~galileo_jax.inference.cnn_files.find_model`).
+    ``init`` auto with method grad: the same where one reads the scene and the fit adds no
+    ``cfg.effects`` (a network knows the base model only), else None and the reason (grad then
+    starts from the prior). Otherwise None.
+
+    Raises:
+        CNNError, OutOfFamily: method cnn or init cnn (or a named network that does not read the
+            scene), and no network reads the scene (one line).
+    """
+    from galileo_jax.inference.cnn_files import find_model
+
+    if method == "cnn" or init == "cnn":
+        return find_model(scene, fps, cfg.cnn.model), None
+    if init != "auto" or method != "grad":
+        return None, None
+    if cfg.effects:
+        return None, f"a trained CNN knows the base model only, not --effects {','.join(cfg.effects)}"
+    if cfg.cnn.model:  # the user's own network: an error of theirs is said, not stepped round
+        return find_model(scene, fps, cfg.cnn.model), None
+    try:
+        return find_model(scene, fps), None
+    except GalileoError as err:  # CNNError, OutOfFamily: no shipped network reads this scene
+        return None, str(err).split("; use --method")[0].split("; train one")[0]  # the reason, not the advice
+
+
 def track_video(video: Path, scene: Scene, cfg: FitConfig, *, fps: float | None = None, method: str = "grad",
-                init: str = "prior", progress: bool = True) -> Tracked:
+                init: str = "auto", progress: bool = True) -> Tracked:
     """Read and track one video (the first stage of :func:`run_fit`).
 
     For method cnn or init cnn the trained model is found first, so a scene without one fails
-    before tracking.
+    before tracking; for init auto (grad, no ``cfg.effects``) it is looked for, and None where
+    no network reads the scene.
 
     Raises:
         GalileoError: bad video, tracking failure, no CNN for the scene (method cnn or init cnn).
@@ -290,22 +340,19 @@ def track_video(video: Path, scene: Scene, cfg: FitConfig, *, fps: float | None 
 
     t = time.perf_counter()
     clip = read_video(video, fps_override=fps or scene.video.fps)
-    cnn_model = None
-    if method == "cnn" or init == "cnn":  # no trained model for this scene: say so before tracking
-        from galileo_jax.inference.cnn_files import find_model
-
-        cnn_model = find_model(scene, clip.fps, cfg.cnn.model)
+    cnn_model, cnn_note = cnn_model_for(scene, clip.fps, cfg, method, init)  # before tracking: fail early
     obs = observe(clip, scene, progress=progress)
-    return Tracked(Path(video), clip, obs, cnn_model, time.perf_counter() - t)
+    return Tracked(Path(video), clip, obs, cnn_model, time.perf_counter() - t, cnn_note)
 
 
-def scene_for_fit(scene: Scene, cfg: FitConfig, method: str = "grad", init: str = "prior") -> Scene:
+def scene_for_fit(scene: Scene, cfg: FitConfig, method: str = "grad") -> Scene:
     """The scene a fit of ``method`` works with: where the camera states no ``scale_tolerance``,
     ``cfg.scale_tolerance`` (:attr:`~galileo_jax.config.FitConfig.scale_tolerance`), so that grad
-    and mh fit the nuisance ``scale_error``. The CNN's network knows the base model's coordinates
-    only and the seed's sampler the physical ones: ``--method cnn``, ``--init cnn`` and ``--method
-    seed`` keep the scene as stated."""
-    if method in ("cnn", "seed") or init == "cnn":
+    and mh fit the nuisance ``scale_error`` (started from the CNN too: the network's estimate
+    leaves it at 0 with its window open, :data:`~galileo_jax.inference.cnn.NEUTRAL_KINDS`). The
+    CNN's network reads the base model's coordinates only and the seed's sampler the physical
+    ones: ``--method cnn`` and ``--method seed`` keep the scene as stated."""
+    if method in ("cnn", "seed"):
         return scene
     return scene.with_scale_tolerance(cfg.scale_tolerance)
 
@@ -318,7 +365,7 @@ def problem_options(scene: Scene, cfg: FitConfig, method: str) -> dict:
 
 
 def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path, fps: float | None = None,
-            seed: int = 0, overlay: bool = True, progress: bool = True, init: str = "prior") -> FitReport:
+            seed: int = 0, overlay: bool = True, progress: bool = True, init: str = "auto") -> FitReport:
     """Fit one video and write the results (see module docstring).
 
     Args:
@@ -331,7 +378,9 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
         seed: random seed.
         overlay: write the overlay video.
         progress: show progress bars.
-        init: "prior" or "cnn" (grad and mh start from the trained CNN's estimate).
+        init: "prior", "cnn" (grad and mh start from the trained CNN's estimate) or "auto"
+            (grad from the CNN where a network reads the video, else from the prior; mh from
+            the prior).
 
     Raises:
         GalileoError: bad video, tracking failure, unknown method or likelihood, no CNN for
@@ -339,14 +388,15 @@ def run_fit(video: Path, scene: Scene, cfg: FitConfig, *, method: str, out: Path
     """
     tracked = track_video(video, scene, cfg, fps=fps, method=method, init=init, progress=progress)
     t = time.perf_counter()
-    scene = scene_for_fit(scene, cfg, method, init)
+    scene = scene_for_fit(scene, cfg, method)
     try:
         problem = Problem(scene, tracked.observation, **problem_options(scene, cfg, method))
     except ValueError as err:
         raise GalileoError(f"{err}") from None
     key = jax.random.PRNGKey(seed)
     parameters, diagnostics, theta_best, draws, posterior = _estimate_and_draws(problem, method, cfg, key, progress,
-                                                                                 init, tracked.cnn_model)
+                                                                                 init, tracked.cnn_model,
+                                                                                 tracked.cnn_note)
     diagnostics["engine"] = problem.simulator_engine
     timings = {"observe_s": tracked.seconds, "inference_s": time.perf_counter() - t}
     return finish_fit(tracked, problem, cfg, method=method, parameters=parameters, diagnostics=diagnostics,
@@ -389,7 +439,7 @@ def finish_fit(tracked: Tracked, problem: Problem, cfg: FitConfig, *, method: st
 
 def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: list[Path], fps: float | None = None,
                   seed: int = 0, overlay: bool = False, progress: bool = True) -> list[FitReport | Exception]:
-    """``run_fit(..., method="grad")`` of several videos of one scene, their fits as one batched
+    """``run_fit(..., method="grad", init="prior")`` of several videos of one scene, their fits as one batched
     computation (:func:`~galileo_jax.inference.batch.fit_grad_batch`, sharded over the local
     devices when there are several; one call per frame rate among the videos).
 
@@ -422,7 +472,7 @@ def run_fit_batch(videos: list[Path], scene: Scene, cfg: FitConfig, *, outs: lis
     tracked: dict[int, Tracked] = {}
     for j, video in enumerate(videos):
         try:
-            tracked[j] = track_video(video, scene, cfg, fps=fps, progress=progress)
+            tracked[j] = track_video(video, scene, cfg, fps=fps, init="prior", progress=progress)
         except Exception as err:  # noqa: BLE001 - recorded for this video; the others still fit
             results[j] = err
     k_run, k_sum = jax.random.split(jax.random.PRNGKey(seed))

@@ -183,6 +183,73 @@ def test_shipped_model_against_ground_truth_on_simulations():
         cnn.estimate(model, obs, ParamSpace.from_scene(SCENE, resolve_effects("linear_drag")), jax.random.PRNGKey(0))
 
 
+def test_estimate_leaves_the_scale_nuisance_neutral_and_open():
+    """A fit with the camera's scale error as a nuisance (fit's default +-3%) starts from the
+    CNN too: the network's own coordinates are as without the nuisance, the scale error comes
+    out at 0 with its whole window as interval and draws, and an unknown SD in z; an effect the
+    network does not know is still refused."""
+    model = cnn_files.find_model(SCENE, 30.0)
+    obs = simulated_observation(SCENE, PhysParams(jnp.asarray([0.6, 0.3]), jnp.asarray([0.2, 0.3])), fps=30.0,
+                                duration=2.5, position_sd=5e-4, release_time=0.4, seed=3)
+    plain = cnn.estimate(model, obs, ParamSpace.from_scene(SCENE), jax.random.PRNGKey(0))
+    space = ParamSpace.from_scene(SCENE.with_scale_tolerance(0.03))
+    assert space.names[-1] == "scale_error" and space.dim == plain.theta.size + 1
+    est = cnn.estimate(model, obs, space, jax.random.PRNGKey(0))
+    assert est.names == space.names
+    np.testing.assert_allclose(est.theta[:-1], plain.theta)
+    np.testing.assert_allclose(est.interval90[:-1], plain.interval90)
+    assert est.theta[-1] == 0.0 and tuple(est.interval90[-1]) == (-0.03, 0.03)
+    assert est.draws.shape == (256, space.dim)
+    assert -0.03 <= est.draws[:, -1].min() < -0.02 and 0.02 < est.draws[:, -1].max() <= 0.03
+    assert np.isnan(est.sd_z[-1]) and np.all(np.isfinite(est.sd_z[:-1]))
+    with pytest.raises(cnn.CNNError, match="base model"):
+        cnn.estimate(model, obs, ParamSpace.from_scene(SCENE.with_scale_tolerance(0.03),
+                                                       resolve_effects("linear_drag")), jax.random.PRNGKey(0))
+
+
+def test_grad_starts_from_the_cnn_by_default_where_a_network_reads_the_video():
+    """fit's default ``--init auto``: grad starts from the CNN's estimate where a network reads
+    the scene (the scale nuisance too, at 0), from the prior where none does (and says why);
+    mh starts from the prior; ``--init cnn`` on a scene no network reads is an error."""
+    from galileo_jax.config import FitConfig
+    from galileo_jax.errors import GalileoError
+    from galileo_jax.inference.problem import Problem
+    from galileo_jax.pipeline import _estimate_and_draws, cnn_model_for, problem_options, scene_for_fit
+
+    cfg = FitConfig()
+    cfg.grad.starts, cfg.grad.screen, cfg.grad.max_steps, cfg.grad.profile = 1, 8, 3, False
+    cfg.grad.search_generations, cfg.grad.inside = 0, False
+    steep = SCENE.model_copy(update={"ramp": SCENE.ramp.model_copy(update={"angle_deg": 60.0})})
+    model, note = cnn_model_for(steep, 30.0, cfg, "grad", "auto")  # outside every network's scenes
+    assert model is None and "angle_deg = 60" in note
+    with pytest.raises(GalileoError, match="angle"):
+        cnn_model_for(steep, 30.0, cfg, "grad", "cnn")
+    model, note = cnn_model_for(SCENE, 30.0, cfg, "grad", "auto")
+    assert model is not None and note is None and cnn_model_for(SCENE, 30.0, cfg, "mh", "auto") == (None, None)
+    cfg.effects = ["linear_drag"]
+    assert cnn_model_for(SCENE, 30.0, cfg, "grad", "auto") == (None, "a trained CNN knows the base model only, not "
+                                                                       "--effects linear_drag")
+    cfg.effects = []
+    cfg.cnn.model = "no/such/folder"  # a network the user names: its error is said, not stepped round
+    with pytest.raises(GalileoError):
+        cnn_model_for(SCENE, 30.0, cfg, "grad", "auto")
+    cfg.cnn.model = None
+    scene = scene_for_fit(SCENE, cfg)
+    obs = simulated_observation(SCENE, PhysParams(jnp.asarray([0.6, 0.3]), jnp.asarray([0.2, 0.3])), fps=30.0,
+                                duration=2.5, position_sd=5e-4, release_time=0.4, seed=3)
+    problem = Problem(scene, obs, **problem_options(scene, cfg, "grad"))
+    key = jax.random.PRNGKey(0)
+    _, diag, *_ = _estimate_and_draws(problem, "grad", cfg, key, False, "auto", model)
+    assert diag["init"] == "cnn" and diag["cnn_theta"]["scale_error"] == 0.0
+    assert abs(diag["cnn_theta"]["k1"] - 0.2) < 0.01
+    _, diag, *_ = _estimate_and_draws(problem, "grad", cfg, key, False, "auto", None, "no network for 60 degrees")
+    assert diag["init"] == "prior" and diag["init_note"] == "started from the prior: no network for 60 degrees"
+    # --method cnn under the default --init: the network's own answer, on the scene as stated
+    as_stated = Problem(SCENE, obs, **problem_options(SCENE, cfg, "cnn"))
+    params, _, theta, _, post = _estimate_and_draws(as_stated, "cnn", cfg, key, False, "auto", model)
+    assert post.kind == "cnn" and abs(params["k1"]["estimate"] - 0.2) < 0.01 and theta.shape == (4,)
+
+
 def test_seed_prior_draws_as_the_seed_drew():
     """The seed's prior (NOTES.md): k1, k2 ~ U(0, 0.3) and m1, m2 ~ U(0, 1), so phi is not
     uniform: P(|phi| < 1/2) = P(1/3 < m1 / m2 < 3) = 2/3 (a uniform phi gives 1/2). A config

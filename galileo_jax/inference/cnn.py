@@ -73,6 +73,13 @@ MAX_SPEED = 10.0
 FPS_TOLERANCE = 0.02
 
 
+#: Kinds of fit coordinate (:attr:`~galileo_jax.params.ParamSpace.kinds`) a network need not
+#: predict: the camera's scale error, a calibration nuisance at whose neutral value (0) the
+#: network is trained. :func:`estimate` puts such a coordinate at 0 and leaves its whole window
+#: open, so ``--init cnn`` keeps the nuisance ``fit`` adds by default.
+NEUTRAL_KINDS = ("scale",)
+
+
 class CNNError(GalileoError):
     """No usable trained model (none matches the scene, or the files are unreadable)."""
 
@@ -476,7 +483,8 @@ class CNNEstimate(NamedTuple):
         interval90: (d, 2) 90% intervals.
         draws: (S, d) draws from the network's Gaussian in z, mapped to theta (S copies of
             ``theta`` for the seed's network).
-        sd_z: (d,) the network's SD in the unconstrained coordinates z (0: the seed's network).
+        sd_z: (d,) the network's SD in the unconstrained coordinates z (0: the seed's network;
+            NaN: a calibration nuisance the network does not read, :data:`NEUTRAL_KINDS`).
         time_s: wall time of the input window and forward pass in s.
         model: the :class:`TrainedModel` used.
     """
@@ -502,6 +510,11 @@ def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.
     which a scene-conditioned network (``model.spec.family``) reads with the profile
     (:func:`family_network_input`).
 
+    A coordinate of ``space`` after the network's own ones whose kind is in
+    :data:`NEUTRAL_KINDS` (the camera's ``scale_error``) comes out at 0 (clipped to its
+    window), with the whole window as its 90% interval, draws uniform over the window and an
+    unknown (NaN) ``sd_z``: the network was trained at the exact scale and says nothing of it.
+
     Raises:
         CNNError: the model predicts other coordinates than ``space`` has (e.g. the fit adds
             effects, which the CNN does not know), or the video does not fit the model.
@@ -511,7 +524,8 @@ def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.
     import time
 
     spec = model.spec
-    if tuple(space.names) != tuple(spec.names):
+    names, extra = tuple(space.names), tuple(range(spec.dim, space.dim))
+    if names[:spec.dim] != tuple(spec.names) or any(space.kinds[j] not in NEUTRAL_KINDS for j in extra):
         raise CNNError(f"the CNN predicts {list(spec.names)}, this fit has {list(space.names)}; the CNN knows the "
                        f"base model only: drop --effects, or use --method grad or mh")
     t0 = time.perf_counter()
@@ -536,5 +550,13 @@ def estimate(model: TrainedModel, obs: Observation, space: ParamSpace, key: jax.
     theta = to_theta(mu)
     interval = np.stack([to_theta(mu - Z90 * sd), to_theta(mu + Z90 * sd)], axis=-1)
     draws = to_theta(z)
-    return CNNEstimate(tuple(spec.names), theta, draws.std(axis=0, ddof=1), interval, draws, sd,
+    sd_z = sd
+    if extra:  # calibration nuisances the network does not read: neutral, their whole window open
+        lo_x, hi_x = np.asarray(space.lower)[list(extra)], np.asarray(space.upper)[list(extra)]
+        theta = np.concatenate([theta, np.clip(0.0, lo_x, hi_x)])
+        interval = np.concatenate([interval, np.stack([lo_x, hi_x], axis=-1)])
+        u = np.asarray(jax.random.uniform(jax.random.fold_in(key, 1), (n_draws, len(extra))), np.float64)
+        draws = np.concatenate([draws, lo_x + (hi_x - lo_x) * u], axis=1)
+        sd_z = np.concatenate([sd, np.full(len(extra), np.nan)])
+    return CNNEstimate(names, theta, draws.std(axis=0, ddof=1), interval, draws, sd_z,
                        time.perf_counter() - t0, model)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from galileo_jax.inference.summary import edge_warning, mixing_warning, optima_warning, profile_note, widening_note
 from galileo_jax.fit_report import FitReport, JointFitReport, identifiability_statement
@@ -64,11 +65,29 @@ def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str
     return "\n".join(lines + _footer_lines(fit.outputs, elapsed))
 
 
+#: Diagnostics said in their own line (:func:`_start_line`), not in the diagnostics list.
+_START_KEYS = ("init", "init_note", "cnn_model")
+
+
+def _start_line(diagnostics: dict) -> list[str]:
+    """Where grad or mh started: the CNN's estimate (which network) or the prior (and why, where
+    ``--init auto`` found no network for the video)."""
+    if diagnostics.get("init") == "cnn":
+        model = Path(str(diagnostics.get("cnn_model", ""))).name
+        return [f"  start: the trained CNN's estimate ({model}, {_fmt(diagnostics.get('cnn_time_s', 0.0))} s)"]
+    if "init_note" in diagnostics:
+        return [f"  start: {diagnostics['init_note']}"]
+    return []
+
+
 def _diagnostic_lines(diagnostics: dict) -> list[str]:
-    diag = {k: v for k, v in diagnostics.items() if isinstance(v, (int, float, bool, str)) and v != ""}
-    if not diag:
-        return []
-    return ["  diagnostics: " + ", ".join(f"{k} {_fmt(v) if isinstance(v, float) else v}" for k, v in diag.items())]
+    diag = {k: v for k, v in diagnostics.items()
+            if isinstance(v, (int, float, bool, str)) and v != "" and k not in _START_KEYS and k != "cnn_time_s"}
+    lines = _start_line(diagnostics)
+    if diag:
+        lines.append("  diagnostics: " + ", ".join(f"{k} {_fmt(v) if isinstance(v, float) else v}"
+                                                   for k, v in diag.items()))
+    return lines
 
 
 def _footer_lines(outputs: dict, elapsed: float | None) -> list[str]:
