@@ -86,7 +86,6 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
     own estimate and time go into the diagnostics. ``cnn_model``: the trained model, if
     already loaded (else found for the scene); ``cnn_note``: why none reads the scene
     (:func:`cnn_model_for`), said in ``init_note``.
-    already loaded (else found for the scene).
     """
     from galileo_jax.inference import summary
 
@@ -111,7 +110,7 @@ def _estimate_and_draws(problem: Problem, method: str, cfg: FitConfig, key, prog
             try:
                 start = cnn_estimate(problem, cfg, jax.random.fold_in(key, 7), cnn_model)
             except GalileoError as err:  # CNNError, OutOfFamily: the network cannot read this fit
-                auto_note = str(err)
+                auto_note = _reason(err)
     cnn_diag = {"init": "prior"} if start is None else {
         "init": "cnn", "cnn_theta": dict(zip(start.names, map(float, start.theta))),
         "cnn_time_s": float(start.time_s), "cnn_model": str(start.model.path)}
@@ -322,7 +321,13 @@ def cnn_model_for(scene: Scene, fps: float, cfg: FitConfig, method: str, init: s
     try:
         return find_model(scene, fps), None
     except GalileoError as err:  # CNNError, OutOfFamily: no shipped network reads this scene
-        return None, str(err).split("; use --method")[0].split("; train one")[0]  # the reason, not the advice
+        return None, _reason(err)
+
+
+def _reason(err: Exception) -> str:
+    """A CNN error's reason without its advice ("; use --method grad or mh", "; train one: ..."),
+    for a grad fit that starts from the prior instead."""
+    return str(err).split("; use --method")[0].split("; train one")[0]
 
 
 def track_video(video: Path, scene: Scene, cfg: FitConfig, *, fps: float | None = None, method: str = "grad",
