@@ -66,7 +66,7 @@ def joint_summary_text(fit: JointFitReport, elapsed: float | None = None) -> str
 
 
 #: Diagnostics said in their own line (:func:`_start_line`), not in the diagnostics list.
-_START_KEYS = ("init", "init_note", "cnn_model")
+_START_KEYS = ("init", "init_note", "cnn_model", "cnn_time_s")
 
 
 def _start_line(diagnostics: dict) -> list[str]:
@@ -82,7 +82,7 @@ def _start_line(diagnostics: dict) -> list[str]:
 
 def _diagnostic_lines(diagnostics: dict) -> list[str]:
     diag = {k: v for k, v in diagnostics.items()
-            if isinstance(v, (int, float, bool, str)) and v != "" and k not in _START_KEYS and k != "cnn_time_s"}
+            if isinstance(v, (int, float, bool, str)) and v != "" and k not in _START_KEYS}
     lines = _start_line(diagnostics)
     if diag:
         lines.append("  diagnostics: " + ", ".join(f"{k} {_fmt(v) if isinstance(v, float) else v}"
