@@ -16,7 +16,9 @@ frictions on (0, 0.3), masses on (0, 1)), the like-for-like comparison with its 
 It also times the training step (examples per second on this machine) and reads each model's
 training record. Writes ``benchmarks/results/cnn_accuracy.{md,json}``.
 
-    python benchmarks/cnn_accuracy.py [--models galileo_jax/models/ramp_20_cnn,galileo_jax/models/ramp_20_seedcnn,benchmarks/models/ramp_20_cnn_seedprior] [--tests 1000]
+    python benchmarks/cnn_accuracy.py [--models MODEL,MODEL,...] [--tests 1000]
+
+(default: the four models of :data:`MODELS`)
 """
 
 from __future__ import annotations
@@ -37,10 +39,18 @@ from _common import machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
+#: The models measured by default.
+MODELS = ("galileo_jax/models/ramp_20_cnn", "galileo_jax/models/ramp_20_seedcnn",
+          "benchmarks/models/ramp_20_cnn_seedprior", "benchmarks/models/ramp_20_cnn_seedprior_slide")
 #: The seed's CNN mean absolute errors over 1,000 simulated tests (NOTES.md, dissertation 5).
 SEED_TABLE = {"m1": 0.1686, "k1": 0.0004, "m2": 0.1605, "k2": 0.0232}
 #: Object 2 must slide this far (m) for k2 and phi to show in the profile (as tests/test_recovery.py).
 MIN_TRAVEL_2 = 0.05
+#: Position noise SDs (m) of the table of k1 by tracker noise: 0.05 mm is about 0.1 px at the 20
+#: degree scene's 1693 px/m, 3 mm about 5 px (the training range's ends).
+NOISE_LEVELS = (5e-5, 2e-4, 1e-3, 3e-3)
+#: Names of those settings start with this.
+NOISE_PREFIX = "noise "
 
 
 def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
@@ -62,7 +72,9 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
     s, _ = setup(cfg)
     spec = model.spec
     settings = {"tracked": cnn_training.NoiseModel(tuple(cfg.noise.position_sd), spec.n_samples, 0),
-                "clean": cnn_training.NoiseModel((1e-12, 1e-12), spec.n_samples, 0)}
+                "clean": cnn_training.NoiseModel((1e-12, 1e-12), spec.n_samples, 0),
+                **{f"{NOISE_PREFIX}{sd * 1e3:g} mm": cnn_training.NoiseModel((sd, sd), spec.n_samples, 0)
+                   for sd in NOISE_LEVELS}}
     chunk = 200
 
     @functools.partial(jax.jit, static_argnums=1)
@@ -145,17 +157,34 @@ def write_tables(results: list[dict], n_tests: int, machine: str | None = None) 
              "(0, 1), so phi is not uniform), the like-for-like comparison with its table. galileo_jax/models/ramp_20_cnn and "
              "ramp_20_seedcnn were trained on the wider default prior (k on (0, 1), phi on (-1, 1)); "
              "benchmarks/models/ramp_20_cnn_seedprior is the default network trained on the seed's prior "
-             "(configs/cnn_ramp20_seedprior.yaml), so for it the two priors are the same.",
+             "(configs/cnn_ramp20_seedprior.yaml), so for it the two priors are the same; "
+             "benchmarks/models/ramp_20_cnn_seedprior_slide is that network reading the slide's closed form as well "
+             "(configs/cnn_ramp20_seedprior_slide.yaml: k1 = tan(theta) - a / (g cos theta) from the slope a of "
+             "object 1's speed on the ramp, galileo_jax.inference.cnn.slide_friction, which the network corrects).",
              "", "| model | setting (tests) | k1 | k2 | phi | dt_release (s) | cover90 k1 / k2 / phi / dt |",
              "|---|---|---|---|---|---|---|",
              f"| seed (Keras, dissertation) | clean | {SEED_TABLE['k1']} | {SEED_TABLE['k2']} | - (m1 {SEED_TABLE['m1']}, "
              f"m2 {SEED_TABLE['m2']}) | - | - |"]
     for r in results:
         for name, st in r["settings"].items():
+            if name.startswith(NOISE_PREFIX):
+                continue
             cells = [f"{st['mae'][n]:.4f} ({st['sd_abs_error'][n]:.4f})" for n in names]
             cov = " / ".join(f"{st['cover90'][n]:.2f}" for n in names) if st["cover90"] else "- (no intervals)"
             lines.append(f"| {r['model']} ({r['architecture']}) | {name} ({st['n']}) | " + " | ".join(cells)
                          + f" | {cov} |")
+    levels = [f"{NOISE_PREFIX}{sd * 1e3:g} mm" for sd in NOISE_LEVELS]
+    lines += ["", "k1 by tracker noise: mean absolute error and 90% coverage on tests with every trace's "
+                  "position noise at one SD (the seed's prior, all tests).", "",
+              "| model | " + " | ".join(f"{lv[len(NOISE_PREFIX):]}" for lv in levels) + " |",
+              "|---|" + "---|" * len(levels)]
+    for r in results:
+        cells = []
+        for lv in levels:
+            st = r["settings"].get(f"seed's prior, {lv}, all")
+            cov = f" / {st['cover90']['k1']:.2f}" if st and st["cover90"] else ""
+            cells.append(f"{st['mae']['k1']:.4f}{cov}" if st else "-")
+        lines.append(f"| {r['model']} | " + " | ".join(cells) + " |")
     lines += ["", "| model | weights | steps | simulated examples (rollouts) | training examples/s | training time (s) "
                   "| forward pass (ms) |", "|---|---|---|---|---|---|---|"]
     for r in results:
@@ -175,7 +204,7 @@ def write_tables(results: list[dict], n_tests: int, machine: str | None = None) 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", default="galileo_jax/models/ramp_20_cnn,galileo_jax/models/ramp_20_seedcnn,benchmarks/models/ramp_20_cnn_seedprior")
+    ap.add_argument("--models", default=",".join(MODELS))
     ap.add_argument("--tests", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=2026)
     args = ap.parse_args(argv)

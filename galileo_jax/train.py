@@ -88,6 +88,7 @@ class TrainConfig(_Strict):
     seed: int = 0
     out: str = "models/ramp_20_cnn"
     family: dict[str, tuple[float, float]] | None = None
+    ramp_feature: bool = False
 
 
 def load_train_config(path: str | Path | None) -> TrainConfig:
@@ -167,7 +168,7 @@ def _spec_and_noise(cfg: TrainConfig, make_spec) -> tuple:
 
     try:
         spec = make_spec(n_samples=cfg.n_samples, release_offset=cfg.release_offset, architecture=cfg.architecture,
-                         width=cfg.width, hidden=cfg.hidden)
+                         width=cfg.width, hidden=cfg.hidden, ramp_feature=cfg.ramp_feature)
         noise = cnn_training.NoiseModel(tuple(cfg.noise.position_sd), cfg.noise.min_samples, cfg.noise.prefix)
         if not 0 < noise.position_sd[0] <= noise.position_sd[1]:
             raise ValueError(f"noise.position_sd must be [low, high] with 0 < low <= high, got {noise.position_sd}")

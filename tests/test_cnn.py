@@ -149,6 +149,57 @@ def test_training_on_the_c_engine_is_one_jitted_step_with_the_beta_nll():
         assert got == pytest.approx(want, rel=1e-5)
 
 
+def test_slide_friction_is_the_closed_form_of_the_ramp_and_the_network_corrects_it():
+    """On clean simulations the line through object 1's speeds on the ramp gives k1 = tan theta -
+    a / (g cos theta) (the sliding acceleration a = g (sin theta - k1 cos theta)) to 0.002 on
+    every slide long enough to count, with the least-squares slope's standard error; a network
+    with ``ramp_feature`` combines that estimate's z with its own by their precisions (where its
+    own SD is huge, k1 is the closed form's), and its spec keeps
+    the geometry through model.json. With the seed's architecture the option is refused."""
+    from galileo_jax.train import make_batch_fn
+
+    cfg = TrainConfig(rollouts=24, views=1, prior="seed", engine="mujoco", ramp_feature=True, width=4, hidden=8,
+                      noise={"position_sd": (1e-12, 1e-12), "min_samples": 96, "prefix": 0})
+    s, state = setup(cfg, SCENE)
+    theta, first = SCENE.ramp.angle, SCENE.objects[0]
+    assert s.spec.ramp[:4] == pytest.approx((math.tan(theta), math.cos(theta), first.start - first.length / 2, 9.81))
+    x, th = jax.jit(make_batch_fn(s), static_argnums=1)(jax.random.PRNGKey(7), 24)
+    feature = cnn.SlideFeature.of(s.spec)
+    k1, se, n = cnn.slide_friction(x, feature)
+    counted = np.asarray(n) >= cnn.SLIDE_MIN_SAMPLES
+    assert counted.mean() >= 0.75  # the fastest slides reach the foot in fewer samples
+    err = np.abs(np.asarray(k1) - np.asarray(th[:, feature.k1_index]))[counted]
+    assert err.max() < 0.002, err
+    # a straight line through speeds with a known slope: the closed form exactly; with white
+    # noise of SD 0.05 m/s on the speeds its standard error is the least-squares slope's
+    t = np.arange(s.spec.n_samples) / s.spec.fps
+    a = 9.81 * (math.sin(theta) - 0.2 * math.cos(theta))
+    ramp = np.clip(a * (t - s.spec.release_offset), 0.0, None)
+    xs = np.zeros((2, s.spec.n_samples, s.spec.channels), np.float32)
+    xs[:, :, 0], xs[:, :, 1], xs[:, :, -1] = ramp * math.cos(theta), -ramp * math.sin(theta), 1.0
+    xs[1, :, 0] += np.random.default_rng(0).normal(0.0, 0.05, s.spec.n_samples)
+    k1_line, se_line, n_line = (np.asarray(v) for v in cnn.slide_friction(jnp.asarray(xs), feature))
+    assert k1_line[0] == pytest.approx(0.2, abs=1e-4) and se_line[0] < 1e-4
+    used = (t > feature.ramp[5]) & (ramp > 0) & (0.5 * a * (t - s.spec.release_offset) ** 2
+                                                 < cnn.SLIDE_REACH * feature.ramp[2])
+    want = 0.05 / math.sqrt(((t[used] - t[used].mean()) ** 2).sum()) / (9.81 * math.cos(theta))
+    assert n_line[1] >= 3 and se_line[1] == pytest.approx(want, rel=0.5)
+    assert abs(k1_line[1] - 0.2) < 4 * want
+    # the network's k1 combines its own reading with the closed form's by their precisions: where
+    # its own SD is large (the last layer's SD output pushed up), k1 is the closed form's
+    params = jax.tree_util.tree_map(lambda v: v, state.params)
+    bias = np.asarray(params["out"]["bias"].get_value()).copy()
+    bias[s.spec.dim + feature.k1_index] = 1e4
+    params["out"]["bias"].set_value(jnp.asarray(bias))
+    pred = cnn.predict(s.spec, s.graphdef, params, x[counted])
+    np.testing.assert_allclose(np.asarray(pred.theta[:, feature.k1_index]), np.asarray(k1)[counted], atol=1e-4)
+    z_sd = np.asarray(pred.sd[:, feature.k1_index])
+    assert np.all(z_sd < 0.05) and np.all(z_sd > 0)  # the closed form's own SD, floored (SLIDE_SE_FLOOR)
+    assert cnn.CNNSpec.from_json(json.loads(json.dumps(s.spec.to_json()))) == s.spec
+    with pytest.raises(ValueError, match="ramp_feature"):
+        cnn.CNNSpec.for_scene(SCENE, 30.0, ramp_feature=True, architecture="seed")
+
+
 def test_shipped_model_against_ground_truth_on_simulations():
     """The shipped 20 degree model on noisy simulated observations of random parameters
     (clean of the tracker): k1 close, phi and (where object 2 slides) k2 close, the truth inside

@@ -103,6 +103,28 @@ def test_family_rollouts_slide_at_the_closed_form_acceleration():
         assert a_fit == pytest.approx(G * (math.sin(th) - k1[b] * math.cos(th)), rel=0.01)
 
 
+def test_slide_friction_reads_each_inputs_ramp_from_its_scene_features():
+    """A scene-conditioned network's closed form of the slide takes each input's ramp angle,
+    object length and start from its (normalised) scene features: on clean simulated examples of
+    three scenes (10, 25 and 40 degrees, other sizes and starts) it gives k1 to 0.003, where the
+    family's middle scene's geometry would be off by 0.05 or more."""
+    spec = cnn.CNNSpec.for_family(FAMILY, 30.0, n_samples=48, ramp_feature=True)
+    noise = cnn_training.NoiseModel((1e-12, 1.001e-12), spec.n_samples, 0)
+    rows = np.stack([_features(angle_deg=a, start_1=s1, length_1=l1, fps=60.0)
+                     for a, s1, l1 in ((10.0, 1.0, 0.05), (25.0, 0.8, 0.10), (40.0, 1.1, 0.12))])
+    k1 = np.tan(np.radians(rows[:, FEATURES.index("angle_deg")])) * np.array([0.3, 0.6, 0.8])
+    theta = jnp.asarray(np.stack([k1, np.full(3, 0.3), np.zeros(3), np.zeros(3)], 1))
+    x = cnn_training.simulate_family_examples(spec, noise, jnp.asarray(rows), theta, jax.random.PRNGKey(1))
+    feature = cnn.SlideFeature.of(spec)
+    tan_t, _, foot = feature.geometry(x)
+    np.testing.assert_allclose(np.asarray(tan_t), np.tan(np.radians(rows[:, 0])), rtol=1e-5)
+    est, _, n = cnn.slide_friction(x, feature)
+    assert np.all(np.asarray(n) >= cnn.SLIDE_MIN_SAMPLES)
+    np.testing.assert_allclose(np.asarray(est), k1, atol=3e-3)
+    middle = feature._replace(scene_features=None)
+    assert np.abs(np.asarray(cnn.slide_friction(x, middle)[0]) - k1).max() > 0.05
+
+
 def _clean_spec_and_noise():
     spec = cnn.CNNSpec.for_family(FAMILY, 30.0, n_samples=48)
     return spec, cnn_training.NoiseModel((1e-12, 1.001e-12), spec.n_samples, 0)

@@ -30,6 +30,20 @@ Outputs. Two networks, both ``f(x (B, L, T + 1)) -> (B, 2, d)``:
   theta(mu +- 1.645 s) has the same coverage as the one in z. Checked on fresh simulations
   in ``benchmarks/cnn_accuracy.py``.
 
+The slide's closed form (:func:`slide_friction`, ``CNNSpec.ramp``, a training option). On the
+ramp object 1 slides with the constant acceleration a = g (sin theta - k1 cos theta), so a
+straight line through its speeds there gives k1 = tan theta - a / (g cos theta), exact up to
+the tracking noise. A network with ``ramp`` computes that estimate and its standard error
+from its own input and combines it with its own Gaussian reading of k1's z by their
+precisions, as two independent measurements (mu = (mu_net / s_net^2 + z_slide / s_slide^2) /
+(1 / s_net^2 + 1 / s_slide^2)): the closed form where the speeds are sharp, the network's
+reading of the whole profile (the floor's deceleration, the impact) where they are noisy. The
+dense layers read how sharp the closed form is (the log of its standard error, and whether
+enough samples gave it), not its value, so that the network's reading stays its own. On the
+seed's prior and clean simulations this takes k1 from 0.0010 to 0.0003 (the seed's network
+0.0004); at 1-3 mm of tracker noise the network's k1 came out worse than without it
+(``benchmarks/results/cnn_accuracy.md``, ``docs/cnn.md``), so the shipped networks do not use it.
+
 All functions here are pure JAX (the model is split into a graph definition and a parameter
 state with :func:`flax.nnx.split`), except loading and the input window, which are I/O and NumPy.
 """
@@ -37,6 +51,7 @@ state with :func:`flax.nnx.split`), except loading and the input window, which a
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
@@ -113,6 +128,14 @@ class CNNSpec:
             ``fps`` is then the rate of the network's own time grid, onto which a video's
             positions are resampled (:func:`family_network_input`). None: a network for one
             scene at one frame rate.
+        ramp: for a network that reads the slide's closed form (:func:`slide_friction`):
+            (tan theta, cos theta, object 1's distance to the ramp's foot in m (its start minus
+            half its length), gravity in m/s^2, window times in s from which the distance slid
+            is summed (the release offset plus the release-time correction's lower bound) and
+            from which the speeds count (plus its upper bound and one frame)); for a
+            scene-conditioned network the first three are each input's own, from its scene
+            features (:class:`SlideFeature`), and are stored as those of the family's middle
+            scene. None: not read.
     """
 
     scene: str
@@ -128,6 +151,7 @@ class CNNSpec:
     width: int = 32
     hidden: int = 128
     family: dict | None = None
+    ramp: tuple[float, ...] | None = None
 
     @property
     def dim(self) -> int:
@@ -155,18 +179,32 @@ class CNNSpec:
         d = dict(data)
         for k in ("names", "lower", "upper"):
             d[k] = tuple(d[k])
+        if d.get("ramp") is not None:
+            d["ramp"] = tuple(d["ramp"])
         return cls(**d)
 
     @classmethod
-    def for_scene(cls, scene: Scene, fps: float, **kw) -> "CNNSpec":
-        """The spec of a network for ``scene`` at ``fps`` (base model: no effects).
+    def for_scene(cls, scene: Scene, fps: float, ramp_feature: bool = False, **kw) -> "CNNSpec":
+        """The spec of a network for ``scene`` at ``fps`` (base model: no effects); with
+        ``ramp_feature`` one that reads the slide's closed form (``ramp``, :func:`slide_friction`).
 
         Raises:
-            ValueError: unknown architecture, or a window too short for the release offset.
+            ValueError: unknown architecture, a window too short for the release offset, or
+            ``ramp_feature`` where object 1 does not start on the ramp, k1 is not fitted or the
+            architecture is the seed's.
         """
         space = ParamSpace.from_scene(scene)
         spec = cls(scene.name, scene_hash(scene), float(fps), space.names, space.lower, space.upper,
                    2 * scene.n_objects, **kw)
+        if ramp_feature:
+            if scene.placement(0) != "ramp" or "k1" not in space.names or spec.architecture != "profile":
+                raise ValueError("ramp_feature needs object 1 on the ramp, k1 fitted and architecture 'profile'")
+            theta, first = scene.ramp.angle, scene.objects[0]
+            i = space.names.index("dt_release") if "dt_release" in space.names else None
+            dt_lo, dt_hi = (0.0, 0.0) if i is None else (space.lower[i], space.upper[i])
+            spec = replace(spec, ramp=(math.tan(theta), math.cos(theta), first.start - first.length / 2,
+                                       float(scene.gravity), spec.release_offset + dt_lo,
+                                       spec.release_offset + dt_hi + 1.0 / spec.fps))
         if spec.architecture not in ARCHITECTURES:
             raise ValueError(f"unknown architecture {spec.architecture!r}; choose one of {ARCHITECTURES}")
         if spec.architecture == "seed" and spec.n_samples < SEED_SAMPLES:
@@ -194,6 +232,129 @@ class CNNSpec:
         if base.architecture != "profile":
             raise ValueError("a scene-conditioned network needs architecture 'profile'")
         return replace(base, scene="family", scene_hash="family", family=family.to_dict())
+
+
+#: Fewest samples on the ramp through which :func:`slide_friction` draws its line. Its standard
+#: error comes from the scatter about the line, n - 2 degrees of freedom: with 3 or 4 samples
+#: that scatter is small by chance often enough that the error was 4-9 standard errors in 1%
+#: of 300 simulated slides (tracker noise 0.1-3 mm); from 6 on it is estimated well enough.
+SLIDE_MIN_SAMPLES = 6
+#: Share of the distance to the ramp's foot within which object 1's speeds count (the last
+#: samples before the foot may hold the turn onto the floor).
+SLIDE_REACH = 0.9
+#: Error of :func:`slide_friction`'s k1 where the speeds hold no noise: its mean absolute error
+#: on 256 clean simulations of the 20 degree scene from the seed's prior was 0.0002 (the
+#: simulator's contact is soft, and the release falls between frames). Added in quadrature to
+#: the standard error the network reads, so a noiseless profile reads like the sharpest ones it
+#: was trained on instead of an error of 0.
+SLIDE_SE_FLOOR = 2e-4
+
+
+class SlideFeature(NamedTuple):
+    """What :func:`slide_friction` needs to know of a network's scene and window (static).
+
+    Attributes:
+        ramp: ``CNNSpec.ramp`` (tan theta, cos theta, foot distance m, gravity m/s^2, the
+            times (s) from which the distance is summed and the speeds count).
+        fps: frame rate of the window (frames per second).
+        k1_index: position of k1 among the network's coordinates.
+        k1_bounds: (low, high) of k1, for its z.
+        scene_features: for a scene-conditioned network, where its input holds the ramp's
+            geometry: (first feature channel, (index, low, high) of ``angle_deg``, of
+            ``length_1`` and of ``start_1`` among the features, normalised linearly to [-1, 1]
+            over (low, high)); None: ``ramp``'s geometry for every input.
+    """
+
+    ramp: tuple[float, ...]
+    fps: float
+    k1_index: int
+    k1_bounds: tuple[float, float]
+    scene_features: tuple | None = None
+
+    @classmethod
+    def of(cls, spec: "CNNSpec") -> "SlideFeature | None":
+        if spec.ramp is None:
+            return None
+        i = spec.names.index("k1")
+        geometry = None
+        if spec.family is not None:
+            from galileo_jax.scene_family import FEATURES, SceneFamily
+
+            family = SceneFamily.from_dict(spec.family)
+            geometry = (spec.n_traces,) + tuple((FEATURES.index(f), float(family.lower[FEATURES.index(f)]),
+                                                 float(family.upper[FEATURES.index(f)]))
+                                                for f in ("angle_deg", "length_1", "start_1"))
+        return cls(tuple(spec.ramp), float(spec.fps), i, (float(spec.lower[i]), float(spec.upper[i])), geometry)
+
+    def geometry(self, x: jax.Array) -> tuple:
+        """(tan theta, cos theta, foot distance in m) of inputs ``x`` (B, L, C): scalars, or
+        (B,) from each input's scene features."""
+        if self.scene_features is None:
+            return self.ramp[:3]
+        first, *columns = self.scene_features
+        angle, length, start = (lo + 0.5 * (x[:, 0, first + j] + 1.0) * (hi - lo) for j, lo, hi in columns)
+        theta = jnp.deg2rad(angle)
+        return jnp.tan(theta), jnp.cos(theta), start - 0.5 * length
+
+
+def slide_friction(x: jax.Array, feature: SlideFeature) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Object 1's friction coefficient on the ramp from the slope of its speed (pure, jittable).
+
+    On the ramp the speed grows linearly, v = a (t - t0) with a = g (sin theta - k1 cos theta)
+    (the sliding acceleration of a block on an incline), so k1 = tan theta - a / (g cos theta).
+    The speeds v_x cos theta - v_y sin theta of object 1 down the slope (traces 0 and 1, in the
+    scene's frame: x down the ramp, the second axis up; signed, so noise does not bias them as
+    it biases |v| at low speed) count from ``feature.ramp``'s start
+    time (after the latest release the network's prior allows) while the distance slid since
+    the earliest release it allows, the running sum of speed / fps, is under
+    :data:`SLIDE_REACH` of the distance to the foot; a = their least-squares slope over the
+    window times k / fps.
+
+    Args:
+        x: (B, L, C) network inputs (traces in m/s first, the mask channel last).
+        feature: the scene and window (:class:`SlideFeature`).
+
+    Returns:
+        ``(k1, se, n)``: (B,) estimates, (B,) their standard errors (the least-squares slope's,
+        from the scatter of the speeds about the line, over g cos theta; both 0 where fewer
+        than :data:`SLIDE_MIN_SAMPLES` samples counted) and (B,) the number of samples that
+        counted.
+    """
+    tan_t, cos_t, foot = feature.geometry(x)
+    gravity, offset, start = feature.ramp[3:]
+    t = jnp.arange(x.shape[1], dtype=x.dtype) / feature.fps
+    mask = x[..., -1]
+    # the velocity along the slope (x runs down the ramp, z up: the scene's frame), signed and
+    # linear in the noise: a speed |v| would be biased up by the noise where it is slow
+    speed = (x[..., 0] - x[..., 1] * jnp.reshape(tan_t, (-1, 1))) * jnp.reshape(cos_t, (-1, 1))
+    slid = jnp.cumsum(speed * mask * (t > offset), axis=1) / feature.fps
+    w = mask * (t > start) * (slid < SLIDE_REACH * jnp.reshape(foot, (-1, 1)))
+    n = jnp.sum(w, axis=1)
+    safe = jnp.maximum(n, 1.0)
+    t_mean = jnp.sum(w * t, axis=1) / safe
+    v_mean = jnp.sum(w * speed, axis=1) / safe
+    dt = t - t_mean[:, None]
+    sxx = jnp.sum(w * dt ** 2, axis=1)
+    sxx = jnp.maximum(sxx, 1e-12)
+    a = jnp.sum(w * dt * (speed - v_mean[:, None]), axis=1) / sxx
+    scatter = jnp.sum(w * (speed - v_mean[:, None] - a[:, None] * dt) ** 2, axis=1) / jnp.maximum(n - 2.0, 1.0)
+    ok = n >= SLIDE_MIN_SAMPLES
+    se = jnp.sqrt(scatter / sxx) / (gravity * cos_t)
+    return jnp.where(ok, tan_t - a / (gravity * cos_t), 0.0), jnp.where(ok, se, 0.0), n
+
+
+def _slide_inputs(x: jax.Array, feature: SlideFeature) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(B,) z of :func:`slide_friction`'s k1 (clipped into k1's bounds), (B,) the log of its
+    standard error (with :data:`SLIDE_SE_FLOOR` in quadrature) in z, clipped to [-12, 3], and
+    (B,) 1 where it counted, else 0 (and the first two 0)."""
+    k1, se, n = slide_friction(x, feature)
+    lo, hi = feature.k1_bounds
+    u = jnp.clip((k1 - lo) / (hi - lo), 1e-3, 1 - 1e-3)
+    valid = (n >= SLIDE_MIN_SAMPLES).astype(x.dtype)
+    se = jnp.sqrt(se ** 2 + SLIDE_SE_FLOOR ** 2)
+    log_se = jnp.clip(jnp.log(se / ((hi - lo) * u * (1.0 - u))), -12.0, 3.0)
+    return (jnp.log(u) - jnp.log1p(-u)) * valid, log_se * valid, valid
+
 
 
 class SeedCNN(nnx.Module):
@@ -239,13 +400,13 @@ class ProfileCNN(nnx.Module):
     """
 
     def __init__(self, n_traces: int, dim: int, n_samples: int, width: int = 32, hidden: int = 128,
-                 n_scene: int = 0, *, rngs: nnx.Rngs):
+                 n_scene: int = 0, slide: SlideFeature | None = None, *, rngs: nnx.Rngs):
         w2 = 2 * width
-        self.n_traces, self.n_scene = n_traces, n_scene
+        self.n_traces, self.n_scene, self.slide = n_traces, n_scene, slide
         self.convs = nnx.List([nnx.Conv(n_traces + 1, width, 5, rngs=rngs), nnx.Conv(width, width, 5, rngs=rngs),
                                nnx.Conv(width, w2, 5, rngs=rngs), nnx.Conv(w2, w2, 5, rngs=rngs),
                                nnx.Conv(w2, w2, 3, rngs=rngs)])
-        self.dense1 = nnx.Linear((n_samples // 8) * w2 + n_scene, hidden, rngs=rngs)
+        self.dense1 = nnx.Linear((n_samples // 8) * w2 + n_scene + (2 if slide else 0), hidden, rngs=rngs)
         self.dense2 = nnx.Linear(hidden, hidden, rngs=rngs)
         self.out = nnx.Linear(hidden, 2 * dim, rngs=rngs)
         self.dim = dim
@@ -260,9 +421,18 @@ class ProfileCNN(nnx.Module):
         y = y.reshape(y.shape[0], -1)
         if F:  # the scene's features join the flattened convolution features
             y = jnp.concatenate([y, x[:, 0, T:T + F]], axis=-1)
+        if self.slide is not None:  # how sharp the slide's closed form is joins them (not its value)
+            z_slide, log_se, valid = _slide_inputs(x, self.slide)
+            y = jnp.concatenate([y, log_se[:, None], valid[:, None]], axis=-1)
         y = nnx.gelu(self.dense2(nnx.gelu(self.dense1(y))))
         out = self.out(y).reshape(-1, 2, self.dim)
-        return jnp.stack([out[:, 0], jax.nn.softplus(out[:, 1]) + MIN_SD], axis=1)
+        mu, sd = out[:, 0], jax.nn.softplus(out[:, 1]) + MIN_SD
+        if self.slide is not None:  # k1: the network's reading and the closed form's, by their precisions
+            i = self.slide.k1_index
+            p_net, p_slide = sd[:, i] ** -2, valid * jnp.exp(-2.0 * log_se)
+            mu = mu.at[:, i].set((p_net * mu[:, i] + p_slide * z_slide) / (p_net + p_slide))
+            sd = sd.at[:, i].set((p_net + p_slide) ** -0.5)
+        return jnp.stack([mu, sd], axis=1)
 
 
 def build_network(spec: CNNSpec, seed: int = 0) -> nnx.Module:
@@ -270,7 +440,8 @@ def build_network(spec: CNNSpec, seed: int = 0) -> nnx.Module:
     rngs = nnx.Rngs(seed)
     if spec.architecture == "seed":
         return SeedCNN(spec.n_traces, spec.dim, rngs=rngs)
-    return ProfileCNN(spec.n_traces, spec.dim, spec.n_samples, spec.width, spec.hidden, spec.n_scene, rngs=rngs)
+    return ProfileCNN(spec.n_traces, spec.dim, spec.n_samples, spec.width, spec.hidden, spec.n_scene,
+                      SlideFeature.of(spec), rngs=rngs)
 
 
 class Prediction(NamedTuple):
