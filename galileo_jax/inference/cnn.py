@@ -281,9 +281,8 @@ class SlideFeature(NamedTuple):
             from galileo_jax.scene_family import FEATURES, SceneFamily
 
             family = SceneFamily.from_dict(spec.family)
-            geometry = (spec.n_traces,) + tuple((FEATURES.index(f), float(family.lower[FEATURES.index(f)]),
-                                                 float(family.upper[FEATURES.index(f)]))
-                                                for f in ("angle_deg", "length_1", "start_1"))
+            columns = [FEATURES.index(f) for f in ("angle_deg", "length_1", "start_1")]
+            geometry = (spec.n_traces,) + tuple((j, float(family.lower[j]), float(family.upper[j])) for j in columns)
         return cls(tuple(spec.ramp), float(spec.fps), i, (float(spec.lower[i]), float(spec.upper[i])), geometry)
 
     def geometry(self, x: jax.Array) -> tuple:
@@ -304,11 +303,10 @@ def slide_friction(x: jax.Array, feature: SlideFeature) -> tuple[jax.Array, jax.
     (the sliding acceleration of a block on an incline), so k1 = tan theta - a / (g cos theta).
     The speeds v_x cos theta - v_y sin theta of object 1 down the slope (traces 0 and 1, in the
     scene's frame: x down the ramp, the second axis up; signed, so noise does not bias them as
-    it biases |v| at low speed) count from ``feature.ramp``'s start
-    time (after the latest release the network's prior allows) while the distance slid since
-    the earliest release it allows, the running sum of speed / fps, is under
-    :data:`SLIDE_REACH` of the distance to the foot; a = their least-squares slope over the
-    window times k / fps.
+    it biases |v| at low speed) count from ``feature.ramp``'s start time (after the latest
+    release the network's prior allows) while the distance slid since the earliest release it
+    allows, the running sum of speed / fps, is under :data:`SLIDE_REACH` of the distance to the
+    foot; a = their least-squares slope over the window times k / fps.
 
     Args:
         x: (B, L, C) network inputs (traces in m/s first, the mask channel last).
@@ -334,8 +332,7 @@ def slide_friction(x: jax.Array, feature: SlideFeature) -> tuple[jax.Array, jax.
     t_mean = jnp.sum(w * t, axis=1) / safe
     v_mean = jnp.sum(w * speed, axis=1) / safe
     dt = t - t_mean[:, None]
-    sxx = jnp.sum(w * dt ** 2, axis=1)
-    sxx = jnp.maximum(sxx, 1e-12)
+    sxx = jnp.maximum(jnp.sum(w * dt ** 2, axis=1), 1e-12)
     a = jnp.sum(w * dt * (speed - v_mean[:, None]), axis=1) / sxx
     scatter = jnp.sum(w * (speed - v_mean[:, None] - a[:, None] * dt) ** 2, axis=1) / jnp.maximum(n - 2.0, 1.0)
     ok = n >= SLIDE_MIN_SAMPLES
@@ -354,7 +351,6 @@ def _slide_inputs(x: jax.Array, feature: SlideFeature) -> tuple[jax.Array, jax.A
     se = jnp.sqrt(se ** 2 + SLIDE_SE_FLOOR ** 2)
     log_se = jnp.clip(jnp.log(se / ((hi - lo) * u * (1.0 - u))), -12.0, 3.0)
     return (jnp.log(u) - jnp.log1p(-u)) * valid, log_se * valid, valid
-
 
 
 class SeedCNN(nnx.Module):
