@@ -160,7 +160,7 @@ def write_tables(results: list[dict], n_tests: int, machine: str | None = None) 
              "(configs/cnn_ramp20_seedprior.yaml), so for it the two priors are the same; "
              "benchmarks/models/ramp_20_cnn_seedprior_slide is that network reading the slide's closed form as well "
              "(configs/cnn_ramp20_seedprior_slide.yaml: k1 = tan(theta) - a / (g cos theta) from the slope a of "
-             "object 1's speed on the ramp, galileo_jax.inference.cnn.slide_friction, which the network corrects).",
+             "object 1's velocity down the ramp, galileo_jax.inference.cnn.slide_friction, combined with the network's own reading by precision).",
              "", "| model | setting (tests) | k1 | k2 | phi | dt_release (s) | cover90 k1 / k2 / phi / dt |",
              "|---|---|---|---|---|---|---|",
              f"| seed (Keras, dissertation) | clean | {SEED_TABLE['k1']} | {SEED_TABLE['k2']} | - (m1 {SEED_TABLE['m1']}, "

@@ -116,7 +116,7 @@ def test_slide_friction_reads_each_inputs_ramp_from_its_scene_features():
     theta = jnp.asarray(np.stack([k1, np.full(3, 0.3), np.zeros(3), np.zeros(3)], 1))
     x = cnn_training.simulate_family_examples(spec, noise, jnp.asarray(rows), theta, jax.random.PRNGKey(1))
     feature = cnn.SlideFeature.of(spec)
-    tan_t, _, foot = feature.geometry(x)
+    tan_t, _, _ = feature.geometry(x)
     np.testing.assert_allclose(np.asarray(tan_t), np.tan(np.radians(rows[:, 0])), rtol=1e-5)
     est, _, n = cnn.slide_friction(x, feature)
     assert np.all(np.asarray(n) >= cnn.SLIDE_MIN_SAMPLES)
