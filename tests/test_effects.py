@@ -492,6 +492,47 @@ def test_alternatives_are_refitted_from_an_improved_null():
     assert fits[0].summary["parameters"][effect.params[0].name]["best"] < 0.5  # no drag was simulated
 
 
+def test_a_slicker_ramp_is_screened_and_started_along_the_ridge():
+    """A ramp 0.06 slicker than the floor: the base fit reads the ramp's friction (its k1 is the
+    ramp's), so moving dk_ramp alone changes the slide the base fit matches and the screen sees
+    only losses, and the refit started there stays at dk_ramp 0. Along ``EffectParam.ridge``
+    (k1 + dk_ramp held) the screen's profile gains, above ``quiet_gain``, and the refit from
+    ``refit_init`` ends near the hidden values. (C MuJoCo, two boxes, no CMA-ES searches.)"""
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings
+    from galileo_jax.criticism.models import Union, fit_model
+    from galileo_jax.criticism.screening import refit_init, screen_candidates
+    from galileo_jax.inference.problem import simulated_observation
+
+    scene = _scene(two=True, start=0.6)
+    effect = get_effect("ramp_friction")
+    assert effect.params[0].ridge == (("k1", -1.0),)
+    truth = {"k1": 0.20, "dk_ramp": -0.06}
+    params = PhysParams(jnp.array([0.5, 0.4]), jnp.array([truth["k1"], 0.35]), effects=jnp.array([truth["dk_ramp"]]))
+    obs = simulated_observation(scene, params, fps=30.0, duration=1.6, release_time=0.2, position_sd=3e-4, seed=1,
+                                effects=(effect,))
+    settings = DiagnoseSettings(base_starts=2, base_screen=32, max_steps=40, refit_search=0, search_generations_c=0)
+    union = Union([scene], [obs], (effect,), settings, engine="mujoco")
+    names = union.problem.names
+    null = fit_model(union, (), settings, jax.random.PRNGKey(0))
+    ramp_k = truth["k1"] + truth["dk_ramp"]
+    assert abs(null.summary["parameters"]["k1"]["best"] - ramp_k) < 0.01  # the base fit reads the ramp
+    plain = dataclasses.replace(effect, params=(dataclasses.replace(effect.params[0], ridge=()),))
+    row_plain = screen_candidates(union, null, [plain], settings)[0]
+    row = screen_candidates(union, null, [effect], settings)[0]
+    assert row_plain["grid_gain"] < 0.0 < settings.quiet_gain < row["grid_gain"]
+    assert row["best_value"] < 0.0
+    k1_move = row["adjust_grid"]["k1"]
+    assert abs(k1_move + row["best_value"]) < 0.01  # k1 moved up along the ridge, by about -dk_ramp
+    fits = {}
+    for name, e, rows in (("plain", plain, [row_plain]), ("ridge", effect, [row])):
+        init = refit_init(union, null, e, rows)
+        fits[name] = fit_model(union, (effect.name,), settings, jax.random.PRNGKey(3), init=init,
+                               starts=settings.refit_starts, screen=settings.refit_screen, search=False)
+    dk = {n: float(f.result.theta[names.index("dk_ramp")]) for n, f in fits.items()}
+    assert abs(dk["ridge"] - truth["dk_ramp"]) < 0.02 and abs(dk["plain"]) < 0.01, dk
+    assert fits["ridge"].loglik > fits["plain"].loglik + 2.0 and fits["ridge"].rmse < 0.8 * null.rmse
+
+
 @pytest.mark.slow
 def test_diagnose_fits_a_scale_error_before_blaming_physics():
     """A video whose scale is 2.5% off (every displacement stretched about the start) and no

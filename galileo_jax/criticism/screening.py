@@ -48,7 +48,11 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
     * ``score``: the local score test at the neutral value (:func:`score_test`), calibrated
       chi-square(1) but blind to effects that only show when large;
     * ``grid``: |r0|^2 - min_b |r(eta) - J b|^2 at the values of :data:`SCREEN_GRID` across the
-      parameter's range (a coarse profile likelihood; large effects are not linear).
+      parameter's range (a coarse profile likelihood; large effects are not linear); for a
+      parameter with a ``ridge`` (:class:`~galileo_jax.effects.EffectParam`) also at the same
+      values with the ridge's base parameters moved along (a re-adjustment too large for the
+      first-order one: e.g. a slicker ramp keeps the ramp's friction k1 + dk_ramp and changes
+      the floor's), the move included in ``adjust_grid``.
 
     Candidates are ranked by the larger of the two (``statistic``); ``best_value`` is the grid
     value with the largest gain, used to start the refit. Screen points whose rollout is not
@@ -80,13 +84,22 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
             prm = by_name[base_name(names[j])]
             plus = add({j: prm.neutral + prm.screen_step})
             minus = None if prm.one_sided else add({j: prm.neutral - prm.screen_step})
+            ridge = [(free_now.index(names.index(n)), c) for n, c in prm.ridge
+                     if n in names and names.index(n) in free_now]
             grid = []
             for f in SCREEN_GRID:
                 if prm.one_sided:
                     vals = [prm.lower + f * (prm.upper - prm.lower)]
                 else:
                     vals = [prm.neutral + f * (prm.upper - prm.neutral), prm.neutral - f * (prm.neutral - prm.lower)]
-                grid += [(v, add({j: v})) for v in vals]
+                grid += [(v, add({j: v}), np.zeros(len(free_now))) for v in vals]
+                for v in vals if ridge else ():  # the same values along the ridge (EffectParam.ridge)
+                    shift = np.zeros(len(free_now))
+                    for k, c in ridge:
+                        shift[k] = float(np.clip(theta0[free_now[k]] + c * (v - prm.neutral),
+                                                 lo[free_now[k]], hi[free_now[k]])) - theta0[free_now[k]]
+                    grid.append((v, add({j: v, **{free_now[k]: theta0[free_now[k]] + shift[k] for k, _ in ridge}}),
+                                 shift))
             plan.append((e.name, prm, names[j], plus, minus, grid))
     if not any(x[0] != "current" for x in plan):
         return []
@@ -112,12 +125,12 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
     rows = []
     for c, (name, prm, coord, plus, minus, grid) in enumerate(cands):
         gains = [(-math.inf, prm.neutral + prm.screen_step, np.zeros(len(free_now)))]  # if no grid point is finite
-        for v, ip in grid:
+        for v, ip, shift in grid:
             if not finite[ip]:
                 continue
             dr = res[ip] - r0
             b = readjust(dr)
-            gains.append((base_ss - float(np.sum((r0 + dr - (jac @ b if b.size else 0.0)) ** 2)), v, -b))
+            gains.append((base_ss - float(np.sum((r0 + dr - (jac @ b if b.size else 0.0)) ** 2)), v, shift - b))
         g_best, v_best, adj_grid = max(gains, key=lambda x: (x[0], x[1]))
         t = float(score.statistic[c])
         adj_step = -readjust(sens[:, c] * score.step[c])

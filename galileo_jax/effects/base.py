@@ -127,6 +127,12 @@ class EffectParam:
         synth_range: range of values drawn for synthetic videos with this hidden effect
             (large enough to be visible in a 1-2 s video).
         doc: one-line meaning.
+        ridge: base-model parameters that move with this one along the likelihood's ridge, as
+            ``(name, coefficient)`` pairs: a change d of this parameter is screened and started
+            from with ``name`` changed by ``coefficient * d`` as well. E.g. ``dk_ramp`` with
+            ``(("k1", -1.0),)``: the ramp's friction k1 + dk_ramp, which the slide down the ramp
+            measures sharply, stays where the base fit put it, and only the floor's changes
+            (:func:`galileo_jax.criticism.screening.screen_candidates`).
     """
 
     name: str
@@ -137,6 +143,7 @@ class EffectParam:
     screen_step: float
     synth_range: tuple[float, float]
     doc: str = ""
+    ridge: tuple[tuple[str, float], ...] = ()
 
     @property
     def one_sided(self) -> bool:
