@@ -47,8 +47,7 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    unless a supported effect's fit has an RMSE at least ``min_rmse_drop`` below the improved
    model's (:func:`~galileo_jax.criticism.nested.clear_gain`; measured: a hidden linear drag in a foreign render, RMSE
    0.0080 -> 0.0052 m/s, was waved through by the adequacy check alone, while on our own
-   render without an effect the supported effects' RMSEs were 5-6% above the improved model's),
-   and unless the improved model already fits within the noise floor over all samples.
+   render without an effect the supported effects' RMSEs were 5-6% above the improved model's).
    Every refit starts, among other points, at the null's estimate with the effect neutral, and
    a refit that still ends below the null is tested at that point (:func:`~galileo_jax.criticism.nested.nested_floor`), so
    no likelihood-ratio statistic is negative.
@@ -385,7 +384,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         timings[f"round{rnd + 1}_null_refits_s"] = time.perf_counter() - t
         if improved:
             done = adequate_round(dataclasses.replace(rnd_info, refits=tests), current, observations, masks, floor, settings)
-            if done is not None and not clear_gain(tests, current, settings, floor):
+            if done is not None and not clear_gain(tests, current, settings):
                 rounds.append(done)
                 break
         supported = sorted([x for x in tests if x.supported], key=lambda x: -x.delta_loglik)
