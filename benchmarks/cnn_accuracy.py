@@ -53,6 +53,11 @@ NOISE_LEVELS = (5e-5, 2e-4, 1e-3, 3e-3)
 NOISE_PREFIX = "noise "
 
 
+def noise_setting(sd: float) -> str:
+    """Name of the setting whose traces all have position noise SD ``sd`` (m)."""
+    return f"{NOISE_PREFIX}{sd * 1e3:g} mm"
+
+
 def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
     """Errors and coverage of one model on tests from the training prior and from the seed's."""
     import jax
@@ -73,7 +78,7 @@ def evaluate(model_dir: Path, n_tests: int, seed: int) -> dict:
     spec = model.spec
     settings = {"tracked": cnn_training.NoiseModel(tuple(cfg.noise.position_sd), spec.n_samples, 0),
                 "clean": cnn_training.NoiseModel((1e-12, 1e-12), spec.n_samples, 0),
-                **{f"{NOISE_PREFIX}{sd * 1e3:g} mm": cnn_training.NoiseModel((sd, sd), spec.n_samples, 0)
+                **{noise_setting(sd): cnn_training.NoiseModel((sd, sd), spec.n_samples, 0)
                    for sd in NOISE_LEVELS}}
     chunk = 200
 
@@ -173,7 +178,7 @@ def write_tables(results: list[dict], n_tests: int, machine: str | None = None) 
             cov = " / ".join(f"{st['cover90'][n]:.2f}" for n in names) if st["cover90"] else "- (no intervals)"
             lines.append(f"| {r['model']} ({r['architecture']}) | {name} ({st['n']}) | " + " | ".join(cells)
                          + f" | {cov} |")
-    levels = [f"{NOISE_PREFIX}{sd * 1e3:g} mm" for sd in NOISE_LEVELS]
+    levels = [noise_setting(sd) for sd in NOISE_LEVELS]
     lines += ["", "k1 by tracker noise: mean absolute error and 90% coverage on tests with every trace's "
                   "position noise at one SD (the seed's prior, all tests).", "",
               "| model | " + " | ".join(f"{lv[len(NOISE_PREFIX):]}" for lv in levels) + " |",

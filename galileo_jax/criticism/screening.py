@@ -84,7 +84,9 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
             prm = by_name[base_name(names[j])]
             plus = add({j: prm.neutral + prm.screen_step})
             minus = None if prm.one_sided else add({j: prm.neutral - prm.screen_step})
-            ridge = [(free_now.index(names.index(n)), c) for n, c in prm.ridge
+            # (index, position among the current model's free parameters, coefficient) of each
+            # free base parameter on the ridge
+            ridge = [(names.index(n), free_now.index(names.index(n)), c) for n, c in prm.ridge
                      if n in names and names.index(n) in free_now]
             grid = []
             for f in SCREEN_GRID:
@@ -93,13 +95,14 @@ def screen_candidates(union: Union, current: ModelFit, candidates, settings: Dia
                 else:
                     vals = [prm.neutral + f * (prm.upper - prm.neutral), prm.neutral - f * (prm.neutral - prm.lower)]
                 grid += [(v, add({j: v}), np.zeros(len(free_now))) for v in vals]
-                for v in vals if ridge else ():  # the same values along the ridge (EffectParam.ridge)
+                if not ridge:
+                    continue
+                for v in vals:  # the same values along the ridge (EffectParam.ridge)
+                    moved = {i: float(np.clip(theta0[i] + c * (v - prm.neutral), lo[i], hi[i])) for i, _, c in ridge}
                     shift = np.zeros(len(free_now))
-                    for k, c in ridge:
-                        shift[k] = float(np.clip(theta0[free_now[k]] + c * (v - prm.neutral),
-                                                 lo[free_now[k]], hi[free_now[k]])) - theta0[free_now[k]]
-                    grid.append((v, add({j: v, **{free_now[k]: theta0[free_now[k]] + shift[k] for k, _ in ridge}}),
-                                 shift))
+                    for i, k, _ in ridge:
+                        shift[k] = moved[i] - theta0[i]
+                    grid.append((v, add({j: v, **moved}), shift))
             plan.append((e.name, prm, names[j], plus, minus, grid))
     if not any(x[0] != "current" for x in plan):
         return []
