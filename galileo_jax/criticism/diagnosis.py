@@ -6,8 +6,9 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
 1. **Base fit**: the scene's model (the sliding block plus the scene's own effects) by
    Levenberg-Marquardt (:func:`~galileo_jax.inference.grad.fit_grad`), with the camera's
    scale error as a calibration nuisance (``DiagnoseSettings.scale_tolerance``). A base fit
-   that fails step 3 is fitted once more from twice the starts (``base_retry``) before
-   anything is blamed on missing physics.
+   that fails step 3 is fitted once more from twice the starts (``base_retry``), and if it
+   still fails, searched by CMA-ES from its best point, before anything is blamed on missing
+   physics.
 2. **Criticism**: residuals per motion phase and trace with tests for structure
    (:mod:`galileo_jax.criticism.residuals`) and a one-line verdict.
 3. **Adequate?** A model whose RMSE away from contact events (samples more than one frame
@@ -47,7 +48,8 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    unless a supported effect's fit has an RMSE at least ``min_rmse_drop`` below the improved
    model's (:func:`~galileo_jax.criticism.nested.clear_gain`; measured: a hidden linear drag in a foreign render, RMSE
    0.0080 -> 0.0052 m/s, was waved through by the adequacy check alone, while on our own
-   render without an effect the supported effects' RMSEs were 5-6% above the improved model's).
+   render without an effect the supported effects' RMSEs were 5-6% above the improved model's),
+   and unless the improved model already fits within the noise floor over all samples.
    Every refit starts, among other points, at the null's estimate with the effect neutral, and
    a refit that still ends below the null is tested at that point (:func:`~galileo_jax.criticism.nested.nested_floor`), so
    no likelihood-ratio statistic is negative.
@@ -278,6 +280,14 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         if again.loglik > current.loglik:
             current = again
             masks = calm_masks(current, observations)
+        if not adequate(current, calm_rmse(current, observations, masks)[0], floor, settings):
+            # more LM starts end in the same ripples: search from the best point (base_retry)
+            say("the base model still misfits: searching from its best fit (CMA-ES)")
+            searched = fit_model(union, (), settings, jax.random.fold_in(key, 2), init=np.asarray(current.result.theta),
+                                 starts=0)
+            if searched.loglik > current.loglik:
+                current = searched
+                masks = calm_masks(current, observations)
     fits = [current]
     timings["base_fit_s"] = time.perf_counter() - t0
     m = max(len(all_candidates), 1)
@@ -384,7 +394,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
         timings[f"round{rnd + 1}_null_refits_s"] = time.perf_counter() - t
         if improved:
             done = adequate_round(dataclasses.replace(rnd_info, refits=tests), current, observations, masks, floor, settings)
-            if done is not None and not clear_gain(tests, current, settings):
+            if done is not None and not clear_gain(tests, current, settings, floor):
                 rounds.append(done)
                 break
         supported = sorted([x for x in tests if x.supported], key=lambda x: -x.delta_loglik)
