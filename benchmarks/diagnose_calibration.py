@@ -213,7 +213,7 @@ def run_one(scene_path: Path, effect: str, i: int, work: Path, seed: int, family
             "final_over_floor": d["rmse_ratio_to_floor"], "attainable_rmse": attainable,
             "final_over_attainable": d["rmse_final"] / attainable,
             "refits": [{k: getattr(x, k) for k in ("effect", "engine", "delta_loglik", "lr_scaled", "p_value",
-                                                   "rmse_after", "supported")}
+                                                   "rmse_after", "negligible", "supported")}
                        for x in (diag.rounds[0].refits if diag.rounds else [])],
             "screen": screen, "verdict_base": d["verdict_base"], "verdict_final": d["verdict_final"],
             "fitted": {f.name: {n: [float(v), float(lo), float(hi)] for n, v, (lo, hi) in

@@ -122,7 +122,7 @@ def summary_text(diag, videos: list[Path]) -> str:
             est = "; ".join(f"{k} {v['mean']:.3g} [{v['interval90'][0]:.3g}, {v['interval90'][1]:.3g}]"
                             if v.get("interval90") else f"{k} {v['mean']:.3g} (no gain)"
                             for k, v in x.parameters.items()) or "-"
-            mark = "  <- supported" if x.supported else ""
+            mark = "  <- supported" if x.supported else ("  (negligible size)" if x.negligible else "")
             mark += f"  ({ENGINE_NAMES[x.engine]})" if x.engine else ""
             lines.append(f"    {x.effect:<26}{x.lr_scaled:>9.1f}{x.p_value:>10.2g}{x.rmse_after:>8.3f}"
                          f"{100 * x.rmse_drop:>6.0f}%   {est}{mark}")

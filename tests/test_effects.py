@@ -457,6 +457,50 @@ def test_nested_refit_never_tests_below_the_null():
     assert shown["best"] == effect.params[0].neutral and "scaled likelihood ratio was -" in shown["note"]
 
 
+def test_a_restitution_inside_its_region_of_practical_equivalence_is_not_named():
+    """A refit that passes its likelihood-ratio test and lowers the RMSE by more than
+    min_rmse_drop, but at a restitution of 0.008 (a foreign render without a hidden effect: the
+    contact's damping ratio 0.84 instead of 1, no measurable bounce beyond the base contact's),
+    is not supported, and the decision says why; the same refit at e = 0.3 is supported. An
+    effect without such a region (linear drag) is never negligible."""
+    from types import SimpleNamespace
+
+    from galileo_jax.criticism.diagnosis import DiagnoseSettings, _decision
+    from galileo_jax.criticism.models import ModelFit
+    from galileo_jax.criticism.nested import negligible, test_effect
+
+    effect = available_effects()["restitution"]
+    assert effect.params[0].negligible > 0.008
+    groups = np.repeat([0, 1], 100)
+    union = SimpleNamespace(coords={effect.name: [0]}, engine="mujoco", residual_groups=lambda: groups)
+
+    def fit(r, names, value):
+        params = {"k1": {"mean": 0.2, "median": 0.2, "best": 0.2, "sd": 0.01, "interval90": [0.19, 0.21]}}
+        if value is not None:
+            params["restitution"] = {"mean": value, "median": value, "best": value, "sd": 0.001,
+                                     "interval90": [value - 0.002, value + 0.002]}
+        return ModelFit("m", (), union, SimpleNamespace(names=names, fixed=()), {"parameters": params},
+                        -0.5 * float(r @ r), r, float(np.sqrt(np.mean(r ** 2))), [], {"looks_like_noise": True}, r)
+
+    current = fit(np.ones(200), ("k1",), None)
+    settings = DiagnoseSettings()
+    for value, named in ((0.008, False), (0.3, True)):
+        fits = [fit(np.full(200, 0.85), ("k1", "restitution"), value)]
+        test = test_effect(current, effect, fits, 0, 1e-3, settings)
+        assert test.p_value < 1e-6 and test.rmse_drop > settings.min_rmse_drop  # significant and large
+        assert test.supported == named and test.negligible == (not named)
+    tests = [test_effect(current, effect, [fit(np.full(200, 0.85), ("k1", "restitution"), 0.008)], 0, 1e-3,
+                         settings)]
+    # a candidate with a smaller p that made the fit worse (none_14: quadratic drag) is not the one to explain
+    worse = SimpleNamespace(effect="quadratic_drag", p_value=1e-14, rmse_drop=-0.09, negligible=False, parameters={})
+    rounds = [SimpleNamespace(adequate=False, quiet=False, refits=[worse] + tests, indistinguishable=None)]
+    base = SimpleNamespace(rmse=0.008, criticism={"looks_like_noise": True}, name="base")
+    message = _decision([base], rounds, [], 0, 0.004, 1e-3, 1.3)["message"]
+    assert message.startswith("No missing effect") and "region of practical equivalence" in message
+    assert "best candidate restitution" in message
+    assert not negligible(available_effects()["linear_drag"], {"drag_linear": {"best": 0.0}})
+
+
 def test_alternatives_are_refitted_from_an_improved_null():
     """When the null model improves (refit from another candidate's estimate), an alternative fitted
     around the old null is refitted from the new one: its refit starts, among others, at the
@@ -678,7 +722,8 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     def fits(rmse):
         return [SimpleNamespace(name="base", rmse=rmse, criticism={"verdict": "fails on the ramp"})]
 
-    rounds = [Round(1, "base", 0.008, refits=[SimpleNamespace(effect="quadratic_drag", p_value=1e-35, rmse_drop=0.01)])]
+    rounds = [Round(1, "base", 0.008, refits=[SimpleNamespace(effect="quadratic_drag", p_value=1e-35, rmse_drop=0.01,
+                                                              negligible=False)])]
     d = _decision(fits(0.024), rounds, [], 0, 0.004, 0.008, 1.3)
     assert d["unexplained_misfit"] and d["missing_effects"] == []
     assert d["message"].startswith("No candidate effect explains the misfit: the model misfits at 6.0x the noise floor")
@@ -695,7 +740,7 @@ def test_a_misfit_no_candidate_explains_is_not_called_no_missing_effect():
     assert "by enough to count" in d["message"] and "beyond chance" not in d["message"], d["message"]
     assert "under the 10% that counts" in d["message"], d["message"]
     rounds_chance = [Round(1, "base", 0.008, refits=[SimpleNamespace(effect="quadratic_drag", p_value=0.2,
-                                                                      rmse_drop=0.01)])]
+                                                                      rmse_drop=0.01, negligible=False)])]
     assert "beyond chance" in _decision(noisy, rounds_chance, [], 0, 0.004, 0.008, 1.3)["message"]
 
 

@@ -59,7 +59,11 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    boundary-corrected; Vuong's test for structural effects) has p below ``alpha / m``, m the
    number of candidates considered (Bonferroni over everything screened, because the screen
    picks the refits from the same data), AND the fit's RMSE falls by at least
-   ``min_rmse_drop`` (10%). The winner is the supported effect whose fit has the largest
+   ``min_rmse_drop`` (10%), AND the fitted value lies outside the effect's region of practical
+   equivalence where it declares one (:func:`~galileo_jax.criticism.nested.negligible`; a
+   restitution below 0.05 rebounds no more than the base contact: a refit at 0.008 on a foreign
+   render without an effect lowered the RMSE 10% by softening the contact). The winner is the
+   supported effect whose fit has the largest
    log-likelihood (the scaled LR tests each effect against the base; as a ranking between
    effects it is erratic: on a hidden linear drag, LR 2098 for velocity friction and 588 for
    linear drag at the same RMSE, 0.0062 m/s);
@@ -485,9 +489,21 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
     elif not added:
         best = None
         if rounds and rounds[0].refits:
-            best = min(rounds[0].refits, key=lambda x: x.p_value)
+            # a refit that passed both tests and was turned down for its negligible size is what to explain
+            rope = [x for x in rounds[0].refits if x.negligible and x.p_value <= threshold
+                    and x.rmse_drop >= min_rmse_drop]
+            best = min(rope or rounds[0].refits, key=lambda x: x.p_value)
         passed = best is not None and best.p_value <= threshold
-        if passed:  # a significant but small gain: chance is not what rules it out
+        if passed and best.negligible and best.rmse_drop >= min_rmse_drop:  # a gain through a negligible value
+            values = ", ".join(f"{n} {v.get('best'):.3g}" for n, v in best.parameters.items()
+                               if v.get("best") is not None)
+            rope = ", ".join(f"{q.name} within {q.negligible:g} of {q.neutral:g}"
+                             for q in available_effects()[best.effect].params)
+            why = (f" (best candidate {best.effect}: p = {best.p_value:.2g} passes its test and lowers the RMSE by "
+                   f"{100 * best.rmse_drop:.0f}%, but at {values}, inside its region of practical equivalence "
+                   f"({rope}), where the effect does not act measurably: the fit improved through something "
+                   "else the parameter also changes)")
+        elif passed:  # a significant but small gain: chance is not what rules it out
             why = (f" (best candidate {best.effect}: p = {best.p_value:.2g} passes its test (threshold "
                    f"{threshold:.2g}) but lowers the RMSE by only {100 * best.rmse_drop:.0f}%, under the "
                    f"{100 * min_rmse_drop:.0f}% that counts)")

@@ -69,7 +69,10 @@ class EffectTest:
         parameters: the effect's parameters in the refit's summary.
         looks_like_noise: the refit's residuals look like noise.
         fit_index: the refit's index in ``Diagnosis.fits``; engine: the engine it ran on.
-        supported: p below the round's threshold and an RMSE drop of at least ``min_rmse_drop``.
+        negligible: the fitted value lies within the effect's region of practical equivalence
+            (:func:`~galileo_jax.criticism.nested.negligible`).
+        supported: p below the round's threshold, an RMSE drop of at least ``min_rmse_drop``, and
+            not ``negligible``.
         vuong_p_vs_winner: for a supported effect other than the winner, Vuong's p against the
             winner (:func:`~galileo_jax.criticism.nested.indistinguishable`), else None.
     """
@@ -90,6 +93,7 @@ class EffectTest:
     looks_like_noise: bool
     fit_index: int = -1
     engine: str = ""
+    negligible: bool = False
     supported: bool = False
     vuong_p_vs_winner: float | None = None
 

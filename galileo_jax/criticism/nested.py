@@ -110,6 +110,19 @@ def refit_from_null(union: Union, null: ModelFit, effect: Effect, fits: list[Mod
     return False
 
 
+def negligible(effect: Effect, parameters: dict) -> bool:
+    """True when every parameter of ``effect`` declares a region of practical equivalence
+    (:attr:`~galileo_jax.effects.EffectParam.negligible`) and its fitted value (``parameters``:
+    ``EffectTest.parameters``, {name: {"best", ...}}) lies within it: the refit improved the fit,
+    but not through the physics the effect stands for (e.g. a restitution of 0.008 softens the
+    contact and rebounds no more than the base contact does), so the effect is not named."""
+    if not effect.params or any(q.negligible <= 0.0 for q in effect.params):
+        return False
+    by_name = {q.name: q for q in effect.params}
+    values = [(by_name[base_name(n)], v.get("best")) for n, v in parameters.items() if base_name(n) in by_name]
+    return bool(values) and all(b is not None and abs(float(b) - q.neutral) <= q.negligible for q, b in values)
+
+
 def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_index: int, threshold: float,
                 settings: DiagnoseSettings) -> EffectTest:
     """Test the refit ``fits[fit_index]`` (current + ``effect``) against ``current``
@@ -119,7 +132,8 @@ def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_ind
     weigh the traces it made worse more: measured on a foreign render, RMSE 5% lower and LR
     -11.1). The nested model at its neutral value is a point of the alternative too, so the
     statistic is never below 0. The result carries ``fit_index`` and ``supported`` (p below
-    ``threshold`` and an RMSE drop of at least ``settings.min_rmse_drop``)."""
+    ``threshold``, an RMSE drop of at least ``settings.min_rmse_drop``, and a fitted value outside
+    the effect's region of practical equivalence, :func:`negligible`)."""
     alt = fits[fit_index]
     if effect.params and alt.loglik < current.loglik:
         alt = fits[fit_index] = nested_floor(current, alt, effect)
@@ -131,7 +145,9 @@ def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_ind
         test = compare(current, alt, effect, n_coords)
     test.fit_index = fit_index
     test.engine = alt.union.engine
-    test.supported = bool(test.p_value < threshold and test.rmse_drop >= settings.min_rmse_drop)
+    test.negligible = negligible(effect, test.parameters)
+    test.supported = bool(test.p_value < threshold and test.rmse_drop >= settings.min_rmse_drop
+                          and not test.negligible)
     return test
 
 

@@ -133,6 +133,12 @@ class EffectParam:
             ``(("k1", -1.0),)``: the ramp's friction k1 + dk_ramp, which the slide down the ramp
             measures sharply, stays where the base fit put it, and only the floor's changes
             (:func:`galileo_jax.criticism.screening.screen_candidates`).
+        negligible: half-width of the effect's region of practical equivalence about ``neutral``
+            (a ROPE: Kruschke 2018, "Rejecting or accepting parameter values in Bayesian
+            estimation", Adv. Methods Pract. Psychol. Sci. 1, 270): a fitted value within it does
+            not change the physics beyond what the base model itself varies by, so ``diagnose``
+            does not name the effect for it, however much the fit improves
+            (:func:`galileo_jax.criticism.nested.negligible`). 0 (the default): no such region.
     """
 
     name: str
@@ -144,6 +150,7 @@ class EffectParam:
     synth_range: tuple[float, float]
     doc: str = ""
     ridge: tuple[tuple[str, float], ...] = ()
+    negligible: float = 0.0
 
     @property
     def one_sided(self) -> bool:
