@@ -133,7 +133,9 @@ def evaluate(model_dir: Path, scene_model: Path, n_tests: int, seed: int) -> dic
     }
     return {"model": str(model_dir.relative_to(ROOT) if model_dir.is_relative_to(ROOT) else model_dir),
             "training": {k: model.info.get(k) for k in ("trained_steps", "rollouts_simulated", "examples_seen",
-                                                       "examples_per_s", "train_s_total", "machine")},
+                                                       "examples_per_s", "train_s_total", "machine",
+                                                       "trained_steps_total", "initialised_from")
+                         if model.info.get(k) is not None},
             "family": spec.family, "tests": n_tests, "seed": seed, "family_tests": fam_rows, "ramp_20": scene_rows}
 
 
@@ -148,10 +150,17 @@ def _table(rows: dict) -> list[str]:
 
 def write(result: dict, machine: str) -> None:
     tr = result["training"]
+    runs, lin = [], tr
+    while lin:  # the runs that made the model, first to last (fine-tuned: TrainConfig.init_from)
+        runs.insert(0, f"{lin['trained_steps']} steps in {lin.get('train_s_total') or 0:.0f} s")
+        lin = lin.get("initialised_from")
+    steps = tr.get("trained_steps_total", tr["trained_steps"])
     lines = ["# Scene-conditioned CNN on fresh simulations", "", f"machine: {machine}", "",
              f"Command: `python benchmarks/cnn_family.py --tests {result['tests']}` (module docstring). Model "
-             f"`{result['model']}`: {tr['trained_steps']} training steps, {tr['rollouts_simulated']} rollouts "
-             f"({tr['examples_seen']} noisy examples) in {tr['train_s_total'] or 0:.0f} s on {tr['machine']}. "
+             f"`{result['model']}`: {steps} training steps of {tr['rollouts_simulated'] // tr['trained_steps']} "
+             f"rollouts x {tr['examples_seen'] // tr['rollouts_simulated']} noisy views"
+             + (f" ({len(runs)} runs, each from the last one's weights: {', then '.join(runs)})" if len(runs) > 1
+                else f" in {tr['train_s_total'] or 0:.0f} s") + f" on {tr['machine']}. "
              "MAE: mean absolute error of the network's median; cover90: share of tests whose truth lies in its "
              f"90% interval (goal 0.85-0.95). k2 and phi over the tests where object 2 travels at least "
              f"{MIN_TRAVEL_2} m.", "", "## Scenes drawn from the family (tracked-like noise, whole windows)", ""]

@@ -53,6 +53,7 @@ class NoiseConfig(_Strict):
     position_sd: tuple[float, float] = (5e-5, 3e-3)
     min_samples: int = Field(24, ge=4)
     prefix: int = Field(6, ge=0)
+    scale_error: float = Field(0.0, ge=0.0, lt=0.5)
 
 
 class TrainConfig(_Strict):
@@ -63,6 +64,10 @@ class TrainConfig(_Strict):
     ({feature: [low, high]}; ``configs/cnn_family.yaml``) instead of one ``scene``; ``fps`` is then
     the network's time grid and ``engine`` C MuJoCo (the family's rollouts,
     :mod:`galileo_jax.physics.simulate_family`).
+
+    ``init_from`` (a trained model folder): start from that model's weights instead of a fresh
+    network (fine-tuning: a fresh optimiser, warm-up and cosine schedule over ``steps``); its
+    network must be the one this config describes. Only a run without checkpoints uses it.
     """
 
     scene: str = "scenes/ramp_20.yaml"
@@ -89,6 +94,7 @@ class TrainConfig(_Strict):
     out: str = "models/ramp_20_cnn"
     family: dict[str, tuple[float, float]] | None = None
     ramp_feature: bool = False
+    init_from: str | None = None
 
 
 def load_train_config(path: str | Path | None) -> TrainConfig:
@@ -169,7 +175,8 @@ def _spec_and_noise(cfg: TrainConfig, make_spec) -> tuple:
     try:
         spec = make_spec(n_samples=cfg.n_samples, release_offset=cfg.release_offset, architecture=cfg.architecture,
                          width=cfg.width, hidden=cfg.hidden, ramp_feature=cfg.ramp_feature)
-        noise = cnn_training.NoiseModel(tuple(cfg.noise.position_sd), cfg.noise.min_samples, cfg.noise.prefix)
+        noise = cnn_training.NoiseModel(tuple(cfg.noise.position_sd), cfg.noise.min_samples, cfg.noise.prefix,
+                                        cfg.noise.scale_error)
         if not 0 < noise.position_sd[0] <= noise.position_sd[1]:
             raise ValueError(f"noise.position_sd must be [low, high] with 0 < low <= high, got {noise.position_sd}")
         if noise.min_samples > spec.n_samples:
@@ -190,7 +197,8 @@ def _with_network(cfg: TrainConfig, scene, spec, noise, engine) -> tuple[Setup, 
     from galileo_jax.inference import cnn
 
     graphdef, params = nnx.split(cnn.build_network(spec, cfg.seed), nnx.Param)
-    schedule = optax.warmup_cosine_decay_schedule(0.0, cfg.learning_rate, min(100, cfg.steps // 10 + 1), cfg.steps,
+    warmup = min(100, cfg.steps // 10 + 1)  # the schedule needs at least one decay step (steps: 1 too)
+    schedule = optax.warmup_cosine_decay_schedule(0.0, cfg.learning_rate, warmup, max(cfg.steps, warmup + 1),
                                                   cfg.learning_rate * 0.05)
     tx = optax.chain(optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=cfg.weight_decay))
     state = TrainState(params, tx.init(params), jnp.asarray(0, jnp.int32), jax.random.PRNGKey(cfg.seed + 1))
@@ -357,7 +365,12 @@ def train(cfg: TrainConfig, *, out: Path, fresh: bool = False, progress: bool = 
         shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True, exist_ok=True)
     manager = _checkpoint_manager(work)
+    restored = manager.latest_step() is not None
     state = _restore(manager, state)
+    lineage = None
+    if cfg.init_from:  # a resumed fine-tuning run keeps its checkpoint, and its lineage
+        tuned, lineage = _init_from(s, state, Path(cfg.init_from))
+        state = state if restored else tuned
     start = int(state.step)
     step_fn = make_train_step(s)
     evaluate = make_eval_fn(s)
@@ -410,8 +423,40 @@ def train(cfg: TrainConfig, *, out: Path, fresh: bool = False, progress: bool = 
             "train_s_total": float(rows[-1]["elapsed_s"]) if rows else None,
             "validation": val or (rows[-1] if rows else {}),
             "config": json.loads(cfg.model_dump_json()), "machine": _machine()}
+    if lineage is not None:
+        info["initialised_from"] = lineage
+        info["trained_steps_total"] = int(state.step) + lineage.get("trained_steps_total", lineage["trained_steps"])
     cnn_files.save_model(out, s.spec, state.params, info)
     return info
+
+
+def _init_from(s: Setup, state: TrainState, path: Path) -> tuple[TrainState, dict]:
+    """``state`` with the weights of the trained model in folder ``path`` (``TrainConfig.init_from``)
+    and a fresh optimiser state, and that model's lineage for the new model's record: {"model",
+    "trained_steps", "trained_steps_total", "train_s_total", "validation", "initialised_from" (its
+    own, if it was fine-tuned too)}.
+
+    Raises:
+        GalileoError: not a model folder, or its network differs from the config's.
+    """
+    from galileo_jax.inference import cnn_files
+    from galileo_jax.inference.cnn import CNNError
+
+    try:
+        model = cnn_files.load_model(path)
+    except CNNError as err:
+        raise GalileoError(f"init_from: {err}") from None
+    if model.spec != s.spec:
+        raise GalileoError(f"init_from: the network in {path} differs from this config's (width, hidden, samples, "
+                           "scene or family); start from a model trained with the same settings")
+    params = model.params
+    info = model.info
+    lineage = {"model": str(path), "trained_steps": int(info.get("trained_steps", 0)),
+               "trained_steps_total": int(info.get("trained_steps_total", info.get("trained_steps", 0))),
+               "train_s_total": info.get("train_s_total"), "validation": info.get("validation", {})}
+    if "initialised_from" in info:
+        lineage["initialised_from"] = info["initialised_from"]
+    return state._replace(params=params, opt_state=s.tx.init(params)), lineage
 
 
 def _machine() -> str:
@@ -431,14 +476,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", help="model folder (overrides the config's out)")
     p.add_argument("--steps", type=int, help="training steps (overrides the config)")
     p.add_argument("--architecture", choices=("profile", "seed"), help="network (overrides the config)")
+    p.add_argument("--init-from", help="trained model folder to start from (fine-tuning; overrides the config)")
+    p.add_argument("--learning-rate", type=float, help="peak learning rate (overrides the config)")
     p.add_argument("--fresh", action="store_true", help="ignore checkpoints of an earlier run and start again")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     cfg = load_train_config(args.config)
     updates = {k: v for k, v in (("scene", args.scene), ("out", args.out), ("steps", args.steps),
-                                 ("architecture", args.architecture)) if v is not None}
+                                 ("architecture", args.architecture), ("init_from", args.init_from),
+                                 ("learning_rate", args.learning_rate)) if v is not None}
     if args.steps is not None and args.steps < 1:
         raise GalileoError(f"--steps must be a positive integer, got {args.steps}")
+    if args.learning_rate is not None and not args.learning_rate > 0:
+        raise GalileoError(f"--learning-rate must be positive, got {args.learning_rate}")
     cfg = cfg.model_copy(update=updates)
     if args.scene is not None and not Path(args.scene).is_file():
         raise GalileoError(f"scene file {args.scene} not found; check the path")

@@ -26,6 +26,7 @@ from galileo_jax.params import ParamSpace
 from galileo_jax.physics.simulate import PhysParams
 from galileo_jax.scene import load_scene
 from galileo_jax.train import TrainConfig, make_train_step, setup, train
+from galileo_jax.errors import GalileoError
 
 SCENE = load_scene("scenes/ramp_20.yaml")
 
@@ -118,6 +119,27 @@ def test_training_step_is_one_jitted_function_and_training_resumes(tmp_path):
     assert np.all(np.isfinite(np.asarray(a.theta)))
     with pytest.raises(cnn.CNNError, match="model.json"):
         cnn_files.load_model(tmp_path)
+    # Fine-tuning (init_from): a fresh run starts from the saved weights with a fresh optimiser;
+    # a model of another network, or a folder without one, is refused in one line.
+    from galileo_jax.train import _init_from
+
+    fresh_state = setup(cfg, SCENE)[1]
+    tuned, lineage = _init_from(s, fresh_state, out)
+    assert lineage["trained_steps"] == 3 and lineage["model"] == str(out)
+    same = jax.tree_util.tree_map(lambda a, b: np.allclose(np.asarray(a), np.asarray(b)), tuned.params, model.params)
+    assert all(jax.tree_util.tree_leaves(same)) and int(tuned.step) == 0
+    differs = jax.tree_util.tree_map(lambda a, b: np.allclose(np.asarray(a), np.asarray(b)), fresh_state.params,
+                                     model.params)
+    assert not all(jax.tree_util.tree_leaves(differs))  # the check can fail: a fresh network differs
+    info = train(cfg.model_copy(update={"steps": 1, "init_from": str(out)}), out=tmp_path / "tuned", progress=False,
+                 scene=SCENE)
+    assert info["trained_steps"] == 1 and info["trained_steps_total"] == 4
+    assert info["initialised_from"]["trained_steps"] == 3
+    wider = setup(cfg.model_copy(update={"width": 5}), SCENE)
+    with pytest.raises(GalileoError, match="init_from: the network"):
+        _init_from(wider[0], wider[1], out)
+    with pytest.raises(GalileoError, match="init_from"):
+        _init_from(s, fresh_state, tmp_path)
 
 
 def test_training_on_the_c_engine_is_one_jitted_step_with_the_beta_nll():

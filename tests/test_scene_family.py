@@ -125,6 +125,27 @@ def test_slide_friction_reads_each_inputs_ramp_from_its_scene_features():
     assert np.abs(np.asarray(cnn.slide_friction(x, middle)[0]) - k1).max() > 0.05
 
 
+def test_training_examples_carry_a_camera_scale_error_when_asked():
+    """``NoiseModel.scale_error``: the same simulation's clean velocities, with a 5% scale error
+    drawn per view, differ from the exact-scale ones by one factor per view, within +-5% and
+    not all 1 (the calibration nuisance grad and mh fit; the network's intervals then carry it)."""
+    spec = cnn.CNNSpec.for_family(FAMILY, 30.0, n_samples=48)
+    exact = cnn_training.NoiseModel((1e-12, 1.001e-12), spec.n_samples, 0)
+    scaled = exact._replace(scale_error=0.05)
+    row = _features(angle_deg=25.0, fps=60.0)
+    theta = jnp.asarray([[0.2, 0.3, 0.1, 0.0]])
+    key = jax.random.PRNGKey(4)
+    a, b = (np.asarray(cnn_training.simulate_family_examples(spec, n, jnp.asarray(row[None]), theta, key, views=6))
+            for n in (exact, scaled))
+    T = spec.n_traces
+    assert np.array_equal(a[..., T:], b[..., T:])  # scene features and mask unchanged
+    moving = np.abs(a[..., :T]) > 0.05
+    ratio = b[..., :T][moving] / a[..., :T][moving]
+    per_view = [b[i, ..., :T][moving[i]] / a[i, ..., :T][moving[i]] for i in range(6)]
+    assert all(np.ptp(r) < 1e-5 for r in per_view)  # one factor per view
+    assert np.all(np.abs(ratio - 1) <= 0.05 + 1e-6) and np.std([r[0] for r in per_view]) > 0.005
+
+
 def _clean_spec_and_noise():
     spec = cnn.CNNSpec.for_family(FAMILY, 30.0, n_samples=48)
     return spec, cnn_training.NoiseModel((1e-12, 1.001e-12), spec.n_samples, 0)

@@ -69,8 +69,9 @@ class EffectTest:
         parameters: the effect's parameters in the refit's summary.
         looks_like_noise: the refit's residuals look like noise.
         fit_index: the refit's index in ``Diagnosis.fits``; engine: the engine it ran on.
-        negligible: the fitted value lies within the effect's region of practical equivalence
-            (:func:`~galileo_jax.criticism.nested.negligible`).
+        negligible: the refit passed its test and the RMSE guard, but its fitted value lies
+            within the effect's region of practical equivalence
+            (:func:`~galileo_jax.criticism.nested.negligible`), so it is not supported.
         supported: p below the round's threshold, an RMSE drop of at least ``min_rmse_drop``, and
             not ``negligible``.
         vuong_p_vs_winner: for a supported effect other than the winner, Vuong's p against the

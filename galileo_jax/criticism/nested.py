@@ -145,9 +145,9 @@ def test_effect(current: ModelFit, effect: Effect, fits: list[ModelFit], fit_ind
         test = compare(current, alt, effect, n_coords)
     test.fit_index = fit_index
     test.engine = alt.union.engine
-    test.negligible = negligible(effect, test.parameters)
-    test.supported = bool(test.p_value < threshold and test.rmse_drop >= settings.min_rmse_drop
-                          and not test.negligible)
+    passed = bool(test.p_value < threshold and test.rmse_drop >= settings.min_rmse_drop)
+    test.negligible = passed and negligible(effect, test.parameters)
+    test.supported = passed and not test.negligible
     return test
 
 

@@ -26,11 +26,21 @@ class NoiseModel(NamedTuple):
         min_samples: shortest valid length of a training window (samples).
         prefix: largest masked prefix (samples), drawn for a third of the examples (videos that
             start less than ``release_offset`` before the release).
+        scale_error: relative error of the camera's scale: each example's velocities are
+            multiplied by 1 + u, u uniform on +-``scale_error`` (the calibration nuisance that
+            ``grad`` and ``mh`` fit within ``FitConfig.scale_tolerance``), so the network's
+            intervals carry it; 0 takes the scale as exact.
     """
 
     position_sd: tuple[float, float] = (5e-5, 3e-3)
     min_samples: int = 24
     prefix: int = 6
+    scale_error: float = 0.0
+
+
+def _scale_errors(noise: NoiseModel, key: jax.Array, b: int, dtype) -> jax.Array:
+    """(b, 1, 1) factors 1 + u, u uniform on +-``noise.scale_error`` (:class:`NoiseModel`)."""
+    return 1.0 + noise.scale_error * jax.random.uniform(key, (b, 1, 1), dtype, minval=-1.0, maxval=1.0)
 
 
 def training_prior(space: ParamSpace, scene: Scene, key: jax.Array, n: int, slide_margin: float = 0.02) -> jax.Array:
@@ -82,8 +92,9 @@ def simulate_examples(engine, spec: CNNSpec, noise: NoiseModel, theta: jax.Array
     C MuJoCo: one batched native call through a callback), at the window's frame times t_k = k / fps, the
     release at ``release_offset`` + theta's ``dt_release``), then ``views`` noisy, cut copies of
     each: position noise e ~ N(0, sd^2) per trace with sd log-uniform on ``noise.position_sd``,
-    velocity noise (e[k+1] - e[k]) * fps; a valid length uniform on [min_samples, L]; a masked
-    prefix for a third of the copies. Rows of the output are grouped by view (view-major).
+    velocity noise (e[k+1] - e[k]) * fps, all scaled by a camera scale error (``noise.scale_error``);
+    a valid length uniform on [min_samples, L]; a masked prefix for a third of the copies. Rows of
+    the output are grouped by view (view-major).
     """
     from galileo_jax.inference.problem import ProblemData, map_batch
 
@@ -103,6 +114,8 @@ def simulate_examples(engine, spec: CNNSpec, noise: NoiseModel, theta: jax.Array
     sd = jnp.exp(jax.random.uniform(k_sd, (b, 1, T), jnp.float32, minval=lo, maxval=hi))
     e = sd * jax.random.normal(k_e, (b, L + 1, T), jnp.float32)
     v = prof + jnp.diff(e, axis=1) * spec.fps
+    if noise.scale_error > 0:  # a static setting: no new key (and no change) for a network trained without it
+        v = v * _scale_errors(noise, jax.random.fold_in(key, 7), b, jnp.float32)
     length = jax.random.randint(k_len, (b, 1), noise.min_samples, L + 1)
     prefix = jnp.where(jax.random.uniform(k_has, (b, 1)) < 1 / 3,
                        jax.random.randint(k_pre, (b, 1), 0, noise.prefix + 1), 0)
@@ -141,7 +154,8 @@ def simulate_family_examples(spec: CNNSpec, noise: NoiseModel, features: jax.Arr
     ``release_offset`` + theta's ``dt_release`` after the window's start. Then, per view, a
     video as a camera would record it: frames at the scene's frame rate (feature ``fps``) from
     a random phase, object centres with position noise e ~ N(0, sd^2) per frame and trace (sd
-    log-uniform on ``noise.position_sd``), resampled to the network's grid (``spec.fps``) by
+    log-uniform on ``noise.position_sd``) and the velocities scaled by a camera scale error
+    (``noise.scale_error``), resampled to the network's grid (``spec.fps``) by
     linear interpolation and differenced, as :func:`~galileo_jax.inference.cnn.family_network_input`
     resamples a tracked video; then cut and masked as :func:`simulate_examples` does (a valid
     length, a masked prefix for a third). A rollout that blew up gives an all-zero example
@@ -182,6 +196,8 @@ def simulate_family_examples(spec: CNNSpec, noise: NoiseModel, features: jax.Arr
     grid = jnp.arange(L + 1) * grid_dt
     on_grid = jax.vmap(lambda t, p: jax.vmap(lambda c: jnp.interp(grid, t, c), in_axes=1, out_axes=1)(p))(t_frames, pos)
     v = jnp.diff(on_grid, axis=1) / grid_dt  # (b, L, T)
+    if noise.scale_error > 0:
+        v = v * _scale_errors(noise, jax.random.fold_in(key, 7), b, jnp.float64)
     clean = jnp.diff(jax.vmap(centres)(poses, grid[None] - release[:, None]), axis=1) / grid_dt
     ok = jnp.all(jnp.isfinite(clean) & (jnp.abs(clean) <= MAX_SPEED), axis=(1, 2))
     v = jnp.where(ok[:, None, None], v, 0.0).astype(jnp.float32)
