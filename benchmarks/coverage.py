@@ -18,7 +18,8 @@ object 2 (``synth.draw_informative_params``: the videos a user films). Each vide
 ``python -m galileo_jax.fit VIDEO --method M`` does (:func:`galileo_jax.pipeline.run_fit`, default
 settings: tracked from the pixels, objects found automatically, the scene file as written by
 the renderer, which states no scale tolerance, so grad and mh fit the camera's scale error as a
-nuisance within +-3% and cnn takes the scale as exact). The intervals are the central 50% and
+nuisance within +-3%; cnn fits no nuisance, and the scene-conditioned network's intervals allow
+for a +-3% scale error it was trained with, ``configs/cnn_family.yaml``). The intervals are the central 50% and
 90% intervals of the fit's posterior draws (``posterior.nc``: mh's chains, grad's and cnn's
 Gaussian approximation); the rank is the share of draws below the truth. ``grad`` is grad
 from the prior (``--init prior``: four starts from a screen of the whole prior); ``grad+cnn``
