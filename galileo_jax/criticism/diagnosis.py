@@ -490,11 +490,10 @@ def _decision(fits, rounds, added, final_index, floor, threshold, adequate_ratio
         best = None
         if rounds and rounds[0].refits:
             # a refit that passed both tests and was turned down for its negligible size is what to explain
-            rope = [x for x in rounds[0].refits if x.negligible and x.p_value <= threshold
-                    and x.rmse_drop >= min_rmse_drop]
+            rope = [x for x in rounds[0].refits if x.negligible]
             best = min(rope or rounds[0].refits, key=lambda x: x.p_value)
         passed = best is not None and best.p_value <= threshold
-        if passed and best.negligible and best.rmse_drop >= min_rmse_drop:  # a gain through a negligible value
+        if passed and best.negligible:  # a gain through a negligible value (negligible implies both tests passed)
             values = ", ".join(f"{n} {v.get('best'):.3g}" for n, v in best.parameters.items()
                                if v.get("best") is not None)
             rope = ", ".join(f"{q.name} within {q.negligible:g} of {q.neutral:g}"

@@ -38,9 +38,14 @@ class NoiseModel(NamedTuple):
     scale_error: float = 0.0
 
 
-def _scale_errors(noise: NoiseModel, key: jax.Array, b: int, dtype) -> jax.Array:
-    """(b, 1, 1) factors 1 + u, u uniform on +-``noise.scale_error`` (:class:`NoiseModel`)."""
-    return 1.0 + noise.scale_error * jax.random.uniform(key, (b, 1, 1), dtype, minval=-1.0, maxval=1.0)
+def _with_scale_error(v: jax.Array, noise: NoiseModel, key: jax.Array) -> jax.Array:
+    """Velocities ``v`` (b, L, T) times a factor 1 + u per example, u uniform on
+    +-``noise.scale_error`` (:class:`NoiseModel`); ``v`` itself where that is 0 (a static
+    setting: a network trained without it draws no extra key and sees the same examples)."""
+    if noise.scale_error <= 0:
+        return v
+    u = jax.random.uniform(jax.random.fold_in(key, 7), (v.shape[0], 1, 1), v.dtype, minval=-1.0, maxval=1.0)
+    return v * (1.0 + noise.scale_error * u)
 
 
 def training_prior(space: ParamSpace, scene: Scene, key: jax.Array, n: int, slide_margin: float = 0.02) -> jax.Array:
@@ -113,9 +118,7 @@ def simulate_examples(engine, spec: CNNSpec, noise: NoiseModel, theta: jax.Array
     lo, hi = math.log(noise.position_sd[0]), math.log(noise.position_sd[1])
     sd = jnp.exp(jax.random.uniform(k_sd, (b, 1, T), jnp.float32, minval=lo, maxval=hi))
     e = sd * jax.random.normal(k_e, (b, L + 1, T), jnp.float32)
-    v = prof + jnp.diff(e, axis=1) * spec.fps
-    if noise.scale_error > 0:  # a static setting: no new key (and no change) for a network trained without it
-        v = v * _scale_errors(noise, jax.random.fold_in(key, 7), b, jnp.float32)
+    v = _with_scale_error(prof + jnp.diff(e, axis=1) * spec.fps, noise, key)
     length = jax.random.randint(k_len, (b, 1), noise.min_samples, L + 1)
     prefix = jnp.where(jax.random.uniform(k_has, (b, 1)) < 1 / 3,
                        jax.random.randint(k_pre, (b, 1), 0, noise.prefix + 1), 0)
@@ -195,9 +198,7 @@ def simulate_family_examples(spec: CNNSpec, noise: NoiseModel, features: jax.Arr
     pos = pos + sd * jax.random.normal(k_e, pos.shape, jnp.float64)
     grid = jnp.arange(L + 1) * grid_dt
     on_grid = jax.vmap(lambda t, p: jax.vmap(lambda c: jnp.interp(grid, t, c), in_axes=1, out_axes=1)(p))(t_frames, pos)
-    v = jnp.diff(on_grid, axis=1) / grid_dt  # (b, L, T)
-    if noise.scale_error > 0:
-        v = v * _scale_errors(noise, jax.random.fold_in(key, 7), b, jnp.float64)
+    v = _with_scale_error(jnp.diff(on_grid, axis=1) / grid_dt, noise, key)  # (b, L, T)
     clean = jnp.diff(jax.vmap(centres)(poses, grid[None] - release[:, None]), axis=1) / grid_dt
     ok = jnp.all(jnp.isfinite(clean) & (jnp.abs(clean) <= MAX_SPEED), axis=(1, 2))
     v = jnp.where(ok[:, None, None], v, 0.0).astype(jnp.float32)
