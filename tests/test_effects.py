@@ -501,6 +501,27 @@ def test_a_restitution_inside_its_region_of_practical_equivalence_is_not_named()
     assert not negligible(available_effects()["linear_drag"], {"drag_linear": {"best": 0.0}})
 
 
+def test_effects_tied_in_fit_loglik_are_ranked_by_their_test_rmse():
+    """The numbers of the rendered linear-drag video that ranking by fit log-likelihood got
+    wrong (ours linear_drag_4): quadratic drag 0.03 nats ahead of linear drag at 1.6x its RMSE.
+    Within the 1-nat band the lower RMSE wins; outside it the log-likelihood still decides, and
+    unsupported refits are never ranked."""
+    from types import SimpleNamespace
+
+    from galileo_jax.criticism.nested import LOGLIK_TIE_NATS, rank_supported
+
+    def t(name, dll, rmse, supported=True):
+        return SimpleNamespace(effect=name, delta_loglik=dll, rmse_after=rmse, supported=supported)
+
+    tests = [t("velocity_friction", 19.86, 0.0080), t("quadratic_drag", 20.65, 0.0066),
+             t("linear_drag", 20.62, 0.0041), t("initial_push", 25.0, 0.0010, supported=False)]
+    assert [x.effect for x in rank_supported(tests)] == ["linear_drag", "quadratic_drag", "velocity_friction"]
+    # a clear log-likelihood lead outside the band is kept, whatever the RMSE
+    far = [t("quadratic_drag", 20.65 + 2 * LOGLIK_TIE_NATS, 0.0066), t("linear_drag", 20.62, 0.0041)]
+    assert [x.effect for x in rank_supported(far)] == ["quadratic_drag", "linear_drag"]
+    assert rank_supported([t("linear_drag", 5.0, 0.004, supported=False)]) == []
+
+
 def test_alternatives_are_refitted_from_an_improved_null():
     """When the null model improves (refit from another candidate's estimate), an alternative fitted
     around the old null is refitted from the new one: its refit starts, among others, at the

@@ -64,9 +64,11 @@ several videos of one setup at once (shared parameters, :mod:`galileo_jax.infere
    restitution below 0.05 rebounds no more than the base contact: a refit at 0.008 on a foreign
    render without an effect lowered the RMSE 10% by softening the contact). The winner is the
    supported effect whose fit has the largest
-   log-likelihood (the scaled LR tests each effect against the base; as a ranking between
-   effects it is erratic: on a hidden linear drag, LR 2098 for velocity friction and 588 for
-   linear drag at the same RMSE, 0.0062 m/s);
+   log-likelihood, and among those within 1 nat of it the one with the lowest test RMSE
+   (:func:`~galileo_jax.criticism.nested.rank_supported`: the fit likelihood's 0.05 m/s
+   model-error floor hardly separates fits far below it; the scaled LR tests each effect
+   against the base, but as a ranking between effects it is erratic: on a hidden linear drag,
+   LR 2098 for velocity friction and 588 for linear drag at the same RMSE, 0.0062 m/s);
    every other supported effect that :func:`~galileo_jax.criticism.nested.indistinguishable` cannot tell from it (Vuong's
    test p > 0.05, or an RMSE within 10% of the winner's) is reported with it: the video cannot
    separate them, and the report says so, naming the measurement that would separate them
@@ -162,6 +164,7 @@ from galileo_jax.criticism.nested import (
     event_sds,
     indistinguishable,
     quiet,
+    rank_supported,
     refit_from_null,
     refit_null,
     test_effect,
@@ -401,7 +404,7 @@ def diagnose(scene: Scene | Sequence[Scene], obs: Observation | Sequence[Observa
             if done is not None and not clear_gain(tests, current, settings, floor):
                 rounds.append(done)
                 break
-        supported = sorted([x for x in tests if x.supported], key=lambda x: -x.delta_loglik)
+        supported = rank_supported(tests)
         rnd_info.refits = tests
         if not supported:
             rounds.append(rnd_info)
