@@ -199,8 +199,15 @@ def cnn_screen(est, space, minimum: float) -> np.ndarray:
 
 def grad_start_from_cnn(est, space, cfg: FitConfig) -> dict:
     """``fit_grad`` options of ``fit --init cnn``: one start at the CNN's estimate plus the best
-    of a ``cfg.grad.screen``-point screen around it (:func:`cnn_screen`)."""
-    return dict(n_starts=1, n_screen=cfg.grad.screen, init=est.theta,
+    ``cfg.grad.starts - 1`` (at least 1) of a ``cfg.grad.screen``-point screen around it
+    (:func:`cnn_screen`, kept apart by :func:`~galileo_jax.inference.starts.diverse_best`): as
+    many Levenberg-Marquardt starts as a fit from the prior, at no extra time on the C engine,
+    which pads a solve to :data:`~galileo_jax.inference.grad.LM_PAD` starts anyway. Measured on
+    the coverage benchmark's 100 videos against one screened start (same networks): the
+    estimate's k2 error smaller by over 10% on 27 videos and larger on 17, phi 24 against 20,
+    k1 19 against 20; the cost surface is rough enough that starts 0.0003 apart in k1 can end
+    1.35 nats apart."""
+    return dict(n_starts=max(cfg.grad.starts - 1, 1), n_screen=cfg.grad.screen, init=est.theta,
                 local_screen=cnn_screen(est, space, cfg.cnn.local_screen))
 
 
