@@ -157,6 +157,38 @@ def test_automatic_choice_of_the_method(tmp_path, plain):
     assert obs_f.tracking.methods == ("features", "features")
 
 
+def test_tracks_with_threads_are_the_serial_ones(tmp_path, monkeypatch):
+    """Checker cubes with a hand over object 1 (tracking starts after the release, so KLT runs
+    forwards and backwards, and starts beside the colour tracker): the same positions, methods
+    and validity with one thread as with two. And the thread helpers hand back results in
+    order and the first failing item's exception, as a serial loop would."""
+    from galileo_jax.observe import tracks
+
+    video, _ = _render(tmp_path, "checker_hand", look="checker", hand=True)
+    scene = load_scene(video.with_suffix(".yaml"))
+    runs = []
+    for threads in (1, 2):
+        monkeypatch.setattr(tracks, "TRACK_THREADS", threads)
+        runs.append(observe(video, scene))
+    serial, threaded = runs
+    assert "features" in serial.tracking.methods, serial.tracking.methods  # KLT did run
+    assert serial.tracking.methods == threaded.tracking.methods
+    assert np.array_equal(serial.pixels, threaded.pixels, equal_nan=True)
+    assert np.array_equal(serial.tracking.measured, threaded.tracking.measured)
+
+    def fail_on_odd(x):
+        if x % 2:
+            raise ValueError(f"odd {x}")
+        return x * 10
+
+    assert tracks.parallel_map(fail_on_odd, [0, 2, 4]) == [0, 20, 40]
+    with pytest.raises(ValueError, match="odd 1"):
+        tracks.parallel_map(fail_on_odd, [0, 1, 2, 3])
+    with pytest.raises(ValueError, match="odd 3"):
+        tracks.submit(lambda: fail_on_odd(3)).result()
+    assert tracks.submit(lambda: fail_on_odd(4)).result() == 40
+
+
 # ------------------------------------------------------------------------------ the matte
 
 

@@ -32,8 +32,16 @@ from galileo_jax.physics.model import object_start_pose
 from galileo_jax.scene import Scene
 
 
+def _usable_cores() -> int:
+    """Cores this process may run on (``os.sched_getaffinity`` where the platform has it, as on
+    Linux; else ``os.cpu_count()``, e.g. on macOS)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 #: Threads of :func:`parallel_map` at most (``GALILEO_JAX_TRACK_THREADS`` overrides; 1: serial).
-TRACK_THREADS = int(os.environ.get("GALILEO_JAX_TRACK_THREADS", "0")) or min(len(os.sched_getaffinity(0)), 4)
+TRACK_THREADS = int(os.environ.get("GALILEO_JAX_TRACK_THREADS", "0")) or min(_usable_cores(), 4)
 
 
 @functools.lru_cache(maxsize=1)
