@@ -203,7 +203,7 @@ def speed(video: Path, repeats: int = 3) -> dict:
         t_track.append(time.perf_counter() - t)
     n = len(clip.frames)
     return {"video": video.name, "n_frames": n, "observe_fps": n / min(t_obs), "track_fps": n / min(t_track),
-            "methods": list(obs.tracking.methods) if hasattr(obs.tracking, "methods") else None}
+            "methods": list(obs.tracking.methods)}
 
 
 def speed_main(per_condition: int, work: Path, argv) -> int:

@@ -49,6 +49,13 @@ def _pool(workers: int) -> concurrent.futures.ThreadPoolExecutor:
     return concurrent.futures.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="galileo-track")
 
 
+def _serial() -> bool:
+    """Whether :func:`parallel_map` and :func:`submit` run their work in the calling thread:
+    one thread allowed, or the caller is itself one of the pool's threads (nested work could
+    wait on itself)."""
+    return TRACK_THREADS <= 1 or threading.current_thread().name.startswith("galileo-track")
+
+
 def parallel_map(fn, items) -> list:
     """``[fn(x) for x in items]``, the calls spread over :data:`TRACK_THREADS` threads: for a
     few large independent jobs (a track forwards and one backwards) that spend most of their
@@ -57,8 +64,7 @@ def parallel_map(fn, items) -> list:
     measurements in two threads ran slower than serially (82 against 90 frames/s on a plain
     960x540 video), its small NumPy calls holding the GIL."""
     items = list(items)
-    # serial inside one of the pool's own threads: a nested map could wait on itself
-    if TRACK_THREADS <= 1 or len(items) < 2 or threading.current_thread().name.startswith("galileo-track"):
+    if len(items) < 2 or _serial():
         return [fn(x) for x in items]
     return list(_pool(TRACK_THREADS).map(fn, items))
 
@@ -67,7 +73,7 @@ def submit(fn) -> concurrent.futures.Future:
     """``fn()`` started on one of :func:`parallel_map`'s threads (run at once, in this thread,
     where there is only one, or inside one of them); its ``result()`` returns or raises what
     ``fn()`` did."""
-    if TRACK_THREADS <= 1 or threading.current_thread().name.startswith("galileo-track"):
+    if _serial():
         out: concurrent.futures.Future = concurrent.futures.Future()
         try:
             out.set_result(fn())
